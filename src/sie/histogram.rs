@@ -1,0 +1,382 @@
+//! One residual histogram H_j and its fitted inlier model G_j (§4.1, §4.5), plus the per-bin
+//! inlier probability table of eq. (InlierRatioReg).
+
+use super::shape::{GeneralisedGaussian, minimise_1d, shape_cost, sigma_cost};
+use super::{NoiseShape, SieOptions};
+
+/// At most this many range refits per fit (fixed point of "range where G > ε").
+const MAX_RANGE_REFITS: usize = 5;
+/// Range refits stop when the old and new intervals overlap by ≥ exp(-0.025) of their mean width.
+const RANGE_TOLERANCE: f64 = 0.025;
+/// Shape-exponent search interval for `NoiseShape::Estimated`.
+const SHAPE_RANGE: (f64, f64) = (0.25, 4.0);
+/// Alternating σ / p rounds when p is estimated.
+const SHAPE_ROUNDS: usize = 6;
+
+/// A fitted histogram: the data the paper's Fig. 1 (right) draws, and the model that
+/// turns it into probabilities.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HistogramModel {
+    /// Fitted G: α (counts per bin at the peak), μ, σ, p. Units: normalised residual.
+    pub shape: GeneralisedGaussian,
+    /// Regulariser β_j added to σ_j when predicting (§4.3).
+    pub beta: f64,
+    /// Penalty k_j of eq. (fitParams) used for the last fit.
+    pub penalty: f64,
+    /// Histogram interval [lo, hi); for pooled |r| histograms lo = 0.
+    pub lo: f64,
+    pub hi: f64,
+    /// Raw counts per bin.
+    pub counts: Vec<f64>,
+    /// Counts after Gaussian smoothing (H̃, what the model is fitted to).
+    pub smoothed: Vec<f64>,
+    /// P(I|r) at each bin centre.
+    pub probability: Vec<f64>,
+    /// P(I|H_j): mean probability of the samples inside the range (§4.5, drives adaptive k).
+    pub mean_inlier_probability: f64,
+    pub samples_in_range: usize,
+    pub samples_total: usize,
+    /// False when no inlier peak could be fitted (no spread, or σ ran to its upper bound).
+    pub peak_found: bool,
+}
+
+impl HistogramModel {
+    pub(crate) fn initial(shape: GeneralisedGaussian, penalty: f64) -> Self {
+        HistogramModel {
+            shape,
+            beta: 0.0,
+            penalty,
+            lo: 0.0,
+            hi: 0.0,
+            counts: Vec::new(),
+            smoothed: Vec::new(),
+            probability: Vec::new(),
+            mean_inlier_probability: 0.0,
+            samples_in_range: 0,
+            samples_total: 0,
+            peak_found: false,
+        }
+    }
+
+    pub fn bins(&self) -> usize {
+        self.counts.len()
+    }
+
+    pub fn bin_width(&self) -> f64 {
+        (self.hi - self.lo) / self.counts.len().max(1) as f64
+    }
+
+    pub fn bin_centre(&self, bin: usize) -> f64 {
+        self.lo + (bin as f64 + 0.5) * self.bin_width()
+    }
+
+    /// G at x, optionally with σ+β (the prediction model) instead of σ (the fitted one).
+    pub fn model(&self, x: f64, with_beta: bool) -> f64 {
+        self.shape.value(x, if with_beta { self.beta } else { 0.0 })
+    }
+
+    /// P(I|x), linearly interpolated between bin centres; 0 outside the histogram range,
+    /// where G < ε·α by construction.
+    #[inline]
+    pub fn probability(&self, x: f64) -> f64 {
+        let bins = self.probability.len();
+        if bins == 0 || !(x >= self.lo && x < self.hi) {
+            return 0.0;
+        }
+        let t = (x - self.lo) / (self.hi - self.lo) * bins as f64 - 0.5;
+        if t <= 0.0 {
+            return self.probability[0];
+        }
+        let i = t as usize;
+        if i + 1 >= bins {
+            return self.probability[bins - 1];
+        }
+        let f = t - i as f64;
+        self.probability[i] * (1.0 - f) + self.probability[i + 1] * f
+    }
+
+    fn interval(&self, pooled: bool, options: &SieOptions) -> (f64, f64) {
+        let w = GeneralisedGaussian::half_width(
+            self.shape.sigma + self.beta,
+            self.shape.p,
+            options.range_epsilon,
+        );
+        if pooled {
+            (0.0, w)
+        } else {
+            (self.shape.mu - w, self.shape.mu + w)
+        }
+    }
+
+    /// Fits the model to the samples (|r| when `pooled`), refitting the range until it is a
+    /// fixed point (§4.5). `samples` yields the same values on every call.
+    pub(crate) fn fit<I: Iterator<Item = f64>>(
+        &mut self,
+        options: &SieOptions,
+        pooled: bool,
+        samples: impl Fn() -> I,
+    ) {
+        self.samples_total = samples().count();
+        for refit in 0..=MAX_RANGE_REFITS {
+            let (lo, hi) = self.interval(pooled, options);
+            if !(hi > lo) || !(hi - lo).is_finite() {
+                self.fit_without_spread(options);
+                return;
+            }
+            self.build_histogram(options, pooled, lo, hi, &samples);
+            self.fit_shape(options, pooled);
+            let (new_lo, new_hi) = self.interval(pooled, options);
+            let overlap = (hi.min(new_hi) - lo.max(new_lo)).max(0.0);
+            let mean_width = 0.5 * ((hi - lo) + (new_hi - new_lo));
+            if refit == MAX_RANGE_REFITS || overlap / mean_width >= (-RANGE_TOLERANCE).exp() {
+                break;
+            }
+        }
+        self.update_probabilities(options);
+    }
+
+    /// All samples equal (σ+β = 0): every sample sits exactly at the peak.
+    fn fit_without_spread(&mut self, options: &SieOptions) {
+        self.shape.sigma = 0.0;
+        self.lo = self.shape.mu;
+        self.hi = self.shape.mu;
+        self.counts.clear();
+        self.smoothed.clear();
+        self.probability.clear();
+        self.samples_in_range = 0;
+        self.mean_inlier_probability = 0.0;
+        self.peak_found = false;
+        let _ = options;
+    }
+
+    fn build_histogram<I: Iterator<Item = f64>>(
+        &mut self,
+        options: &SieOptions,
+        pooled: bool,
+        lo: f64,
+        hi: f64,
+        samples: &impl Fn() -> I,
+    ) {
+        let inside = samples().filter(|&x| x >= lo && x < hi).count();
+        // §4.5: bins linear in the samples in range keeps the per-bin sample variance constant.
+        let wanted = (inside as f64 / options.data_per_bin).round() as usize;
+        let bins = wanted.clamp(options.min_bins, options.max_bins);
+        self.lo = lo;
+        self.hi = hi;
+        self.samples_in_range = inside;
+        self.counts.clear();
+        self.counts.resize(bins, 0.0);
+        let scale = bins as f64 / (hi - lo);
+        for x in samples() {
+            if x >= lo && x < hi {
+                let b = (((x - lo) * scale) as usize).min(bins - 1);
+                self.counts[b] += 1.0;
+            }
+        }
+        // Kernel std ∝ width (§4.5); when the bin cap binds, each bin holds more samples than
+        // data_per_bin, the histogram is less noisy, and the kernel narrows in proportion.
+        let capped = (bins as f64 / wanted.max(1) as f64).min(1.0);
+        let std_bins = options.smoothing * bins as f64 * capped;
+        smooth(&self.counts, &mut self.smoothed, std_bins, pooled);
+    }
+
+    /// μ and α from the peak, then σ (and p) by eq. (fitParams).
+    fn fit_shape(&mut self, options: &SieOptions, pooled: bool) {
+        let bins = self.smoothed.len();
+        let width = self.bin_width();
+        let centres: Vec<f64> = (0..bins).map(|b| self.bin_centre(b)).collect();
+        if pooled {
+            // |r| histograms are mirrored at 0, so the peak of the residual density is at 0.
+            self.shape.mu = 0.0;
+            self.shape.alpha = self.smoothed[0];
+        } else {
+            let (mu, alpha) = refined_peak(&self.smoothed);
+            self.shape.mu = self.lo + (mu + 0.5) * width;
+            self.shape.alpha = alpha;
+        }
+        let total: f64 = self.smoothed.iter().sum();
+        if !(self.shape.alpha > 0.0) || total <= 0.0 {
+            self.peak_found = false;
+            return;
+        }
+        let moment = (centres
+            .iter()
+            .zip(&self.smoothed)
+            .map(|(c, h)| (c - self.shape.mu).powi(2) * h)
+            .sum::<f64>()
+            / total)
+            .sqrt();
+        let sigma_lo = (0.05 * width).max(options.min_sigma).max(f64::MIN_POSITIVE);
+        let sigma_hi = (2.0 * moment).max(4.0 * sigma_lo);
+        let k = self.penalty;
+        let fit_sigma = |shape: GeneralisedGaussian| {
+            minimise_1d(sigma_lo, sigma_hi, |s| {
+                sigma_cost(
+                    &GeneralisedGaussian { sigma: s, ..shape },
+                    &centres,
+                    &self.smoothed,
+                    k,
+                )
+            })
+        };
+        match options.shape {
+            NoiseShape::Fixed(p) => {
+                self.shape.p = p;
+                self.shape.sigma = fit_sigma(self.shape);
+            }
+            NoiseShape::Estimated => {
+                for _ in 0..SHAPE_ROUNDS {
+                    self.shape.sigma = fit_sigma(self.shape);
+                    let before = self.shape.p;
+                    let shape = self.shape;
+                    self.shape.p = minimise_1d(SHAPE_RANGE.0, SHAPE_RANGE.1, |p| {
+                        shape_cost(
+                            &GeneralisedGaussian { p, ..shape },
+                            &centres,
+                            &self.smoothed,
+                            k,
+                        )
+                    });
+                    if (self.shape.p - before).abs() < 1e-3 {
+                        break;
+                    }
+                }
+                self.shape.sigma = fit_sigma(self.shape);
+            }
+        }
+        self.shape.sigma = self.shape.sigma.max(options.min_sigma);
+        self.peak_found = self.shape.sigma < 0.99 * sigma_hi;
+    }
+
+    /// Eq. (InlierRatioReg): P(I|r) = min(cap, G_{σ+β}(r)/H̃(r)); H̃ is floored at one count and
+    /// at 1 % of its peak so empty tail bins do not produce spurious certainty.
+    fn update_probabilities(&mut self, options: &SieOptions) {
+        let bins = self.smoothed.len();
+        let peak = self.smoothed.iter().cloned().fold(0.0, f64::max);
+        let floor = (0.01 * peak).max(1.0);
+        let mut table = std::mem::take(&mut self.probability);
+        table.clear();
+        table.extend((0..bins).map(|b| {
+            let g = self.model(self.bin_centre(b), true);
+            (g / self.smoothed[b].max(floor)).min(options.max_probability)
+        }));
+        self.probability = table;
+        let weighted: f64 = self
+            .counts
+            .iter()
+            .zip(&self.probability)
+            .map(|(c, p)| c * p)
+            .sum();
+        let count: f64 = self.counts.iter().sum();
+        self.mean_inlier_probability = if count > 0.0 { weighted / count } else { 0.0 };
+    }
+}
+
+/// Sub-bin peak: argmax refined by the parabola through its neighbours. Returns (position in
+/// bins, height).
+fn refined_peak(h: &[f64]) -> (f64, f64) {
+    let (b, &y) = h
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .expect("histogram has bins");
+    if b == 0 || b + 1 == h.len() {
+        return (b as f64, y);
+    }
+    let (l, r) = (h[b - 1], h[b + 1]);
+    let curvature = l - 2.0 * y + r;
+    if curvature >= 0.0 {
+        return (b as f64, y);
+    }
+    let d = (0.5 * (l - r) / curvature).clamp(-0.5, 0.5);
+    (b as f64 + d, y - 0.25 * (l - r) * d)
+}
+
+/// Gaussian smoothing with std `std_bins` (in bins), truncated where the kernel weight drops
+/// below 1e-3. The left edge of a |r| histogram is mirrored (|r| is folded at 0); other edges
+/// renormalise by the kernel mass that falls inside the histogram.
+fn smooth(input: &[f64], output: &mut Vec<f64>, std_bins: f64, mirror_left: bool) {
+    let n = input.len();
+    output.clear();
+    if std_bins < 1e-3 {
+        output.extend_from_slice(input);
+        return;
+    }
+    let radius = ((2.0 * 1000f64.ln()).sqrt() * std_bins).ceil() as usize;
+    let kernel: Vec<f64> = (0..=radius)
+        .map(|i| (-0.5 * (i as f64 / std_bins).powi(2)).exp())
+        .collect();
+    output.resize(n, 0.0);
+    let r = radius as isize;
+    for (i, out) in output.iter_mut().enumerate() {
+        let mut sum = 0.0;
+        let mut mass = 0.0;
+        for d in -r..=r {
+            let j = i as isize + d;
+            // bin -1 mirrors bin 0, -2 mirrors 1, …
+            let source = if j < 0 && mirror_left { -j - 1 } else { j };
+            if (0..n as isize).contains(&source) {
+                let w = kernel[d.unsigned_abs()];
+                sum += w * input[source as usize];
+                mass += w;
+            }
+        }
+        *out = if mass > 0.0 { sum / mass } else { 0.0 };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn smoothing_preserves_a_flat_histogram() {
+        let input = vec![5.0; 100];
+        let mut out = Vec::new();
+        smooth(&input, &mut out, 3.0, true);
+        assert!(out.iter().all(|v| (v - 5.0).abs() < 1e-12));
+        smooth(&input, &mut out, 3.0, false);
+        assert!(out.iter().all(|v| (v - 5.0).abs() < 1e-12));
+    }
+
+    #[test]
+    fn smoothing_spreads_a_spike_symmetrically() {
+        let mut input = vec![0.0; 101];
+        input[50] = 1.0;
+        let mut out = Vec::new();
+        smooth(&input, &mut out, 2.0, false);
+        assert!((out[48] - out[52]).abs() < 1e-15);
+        assert!(out[50] > out[49] && out[49] > out[48]);
+    }
+
+    #[test]
+    fn peak_refinement_finds_vertex() {
+        // Parabola with vertex at 3.3.
+        let h: Vec<f64> = (0..8).map(|i| 10.0 - (i as f64 - 3.3).powi(2)).collect();
+        let (pos, height) = refined_peak(&h);
+        assert!((pos - 3.3).abs() < 1e-9, "{pos}");
+        assert!((height - 10.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn probability_is_zero_outside_range_and_interpolates_inside() {
+        let mut m = HistogramModel::initial(
+            GeneralisedGaussian {
+                alpha: 1.0,
+                mu: 0.0,
+                sigma: 1.0,
+                p: 2.0,
+            },
+            10.0,
+        );
+        m.lo = 0.0;
+        m.hi = 4.0;
+        m.counts = vec![1.0; 4];
+        m.probability = vec![0.9, 0.5, 0.3, 0.1];
+        assert_eq!(m.probability(4.0), 0.0);
+        assert_eq!(m.probability(-0.1), 0.0);
+        assert_eq!(m.probability(0.2), 0.9);
+        assert!((m.probability(1.0) - 0.7).abs() < 1e-12);
+        assert_eq!(m.probability(3.9), 0.1);
+    }
+}
