@@ -1,4 +1,20 @@
 //! sie — point-cloud registration with a self-tuning robust cost function: Statistical Inlier
 //! Estimation (Ekekrantz, Folkesson, Jensfelt, "Adaptive Cost Function for Pointcloud
 //! Registration").
+//!
+//! * [`sie`]: the estimator on any residual matrix.
+//! * [`registration`]: rigid registration from correspondences or ICP on two clouds.
+//! * [`ffi`]: the C ABI (the only place with `unsafe`).
+pub mod cost;
+pub mod noise;
+pub mod parallel;
+pub mod registration;
 pub mod sie;
+
+pub use cost::CostFunction;
+pub use noise::{CloudRole, NoiseModel, NoiseScales};
+pub use registration::{
+    Error, InlierEstimate, Metric, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
+    estimate_inliers, register_clouds, register_correspondences,
+};
+pub use sie::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieEstimator, SieOptions};

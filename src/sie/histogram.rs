@@ -230,12 +230,7 @@ impl HistogramModel {
                     let before = self.shape.p;
                     let shape = self.shape;
                     self.shape.p = minimise_1d(SHAPE_RANGE.0, SHAPE_RANGE.1, |p| {
-                        shape_cost(
-                            &GeneralisedGaussian { p, ..shape },
-                            &centres,
-                            &self.smoothed,
-                            k,
-                        )
+                        shape_cost(&GeneralisedGaussian { p, ..shape }, &centres, &self.smoothed, k)
                     });
                     if (self.shape.p - before).abs() < 1e-3 {
                         break;

@@ -110,10 +110,7 @@ impl SieOptions {
             ));
         }
         if !(self.smoothing.is_finite() && self.smoothing >= 0.0 && self.smoothing < 1.0) {
-            return Err(format!(
-                "smoothing must be in [0, 1), got {}",
-                self.smoothing
-            ));
+            return Err(format!("smoothing must be in [0, 1), got {}", self.smoothing));
         }
         if !(self.range_epsilon > 0.0 && self.range_epsilon < 1.0) {
             return Err(format!(
@@ -207,8 +204,7 @@ impl SieEstimator {
                 let (mu, sigma) = match self.options.histogram {
                     HistogramMode::Pooled => (0.0, root_mean_square(residuals.iter().copied())),
                     HistogramMode::PerColumn => {
-                        let mut column: Vec<f64> =
-                            residuals.iter().skip(j).step_by(cols).copied().collect();
+                        let mut column: Vec<f64> = residuals.iter().skip(j).step_by(cols).copied().collect();
                         let mu = median(&mut column);
                         (mu, root_mean_square(column.iter().map(|r| r - mu)))
                     }
@@ -259,10 +255,7 @@ impl SieEstimator {
 
     /// Creates the models for this residual layout without fitting (so β can be set first).
     pub fn prepare(&mut self, residuals: &[f64], cols: usize) {
-        assert!(
-            cols > 0 && residuals.len() % cols == 0,
-            "residual matrix shape"
-        );
+        assert!(cols > 0 && residuals.len() % cols == 0, "residual matrix shape");
         self.ensure_models(residuals, cols);
     }
 
@@ -276,9 +269,7 @@ impl SieEstimator {
             }
             HistogramMode::PerColumn => {
                 for (j, model) in self.models.iter_mut().enumerate() {
-                    model.fit(options, false, || {
-                        residuals.iter().skip(j).step_by(cols).copied()
-                    });
+                    model.fit(options, false, || residuals.iter().skip(j).step_by(cols).copied());
                 }
             }
         }
@@ -434,10 +425,7 @@ mod tests {
             assert!(p.iter().all(|v| (0.0..=1.0).contains(v)));
             let pin = mean_where(&p, &inlier, true);
             let pout = mean_where(&p, &inlier, false);
-            assert!(
-                pin > 0.8 && pout < 0.2,
-                "{mode:?}: inliers {pin} outliers {pout}"
-            );
+            assert!(pin > 0.8 && pout < 0.2, "{mode:?}: inliers {pin} outliers {pout}");
         }
     }
 
@@ -461,11 +449,7 @@ mod tests {
         }
         let m = &sie.models()[0];
         assert!((m.shape.p - 1.0).abs() < 0.2, "p {}", m.shape.p);
-        assert!(
-            (m.shape.sigma - b).abs() < 0.2 * b,
-            "sigma {}",
-            m.shape.sigma
-        );
+        assert!((m.shape.sigma - b).abs() < 0.2 * b, "sigma {}", m.shape.sigma);
     }
 
     #[test]

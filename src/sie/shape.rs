@@ -51,12 +51,7 @@ fn penalty_terms(h: f64, g: f64, dg: f64, k: f64) -> (f64, f64) {
 }
 
 /// Total penalty Σ F(H̃(c) - G(c)) and dC/dσ, evaluated at the bin centres `centres`.
-pub fn sigma_cost(
-    model: &GeneralisedGaussian,
-    centres: &[f64],
-    hist: &[f64],
-    k: f64,
-) -> (f64, f64) {
+pub fn sigma_cost(model: &GeneralisedGaussian, centres: &[f64], hist: &[f64], k: f64) -> (f64, f64) {
     let mut cost = 0.0;
     let mut deriv = 0.0;
     let s = model.sigma;
@@ -74,12 +69,7 @@ pub fn sigma_cost(
 }
 
 /// Total penalty and dC/dp for the shape exponent (appendix: "SIE can be used to find an estimate of p").
-pub fn shape_cost(
-    model: &GeneralisedGaussian,
-    centres: &[f64],
-    hist: &[f64],
-    k: f64,
-) -> (f64, f64) {
+pub fn shape_cost(model: &GeneralisedGaussian, centres: &[f64], hist: &[f64], k: f64) -> (f64, f64) {
     let mut cost = 0.0;
     let mut deriv = 0.0;
     let p = model.p;
@@ -181,12 +171,7 @@ mod tests {
         };
         let hist: Vec<f64> = centres.iter().map(|&c| truth.value(c, 0.0)).collect();
         let sigma = minimise_1d(0.01, 4.0, |s| {
-            sigma_cost(
-                &GeneralisedGaussian { sigma: s, ..truth },
-                &centres,
-                &hist,
-                10.0,
-            )
+            sigma_cost(&GeneralisedGaussian { sigma: s, ..truth }, &centres, &hist, 10.0)
         });
         assert!((sigma - 0.7).abs() < 1e-6, "{sigma}");
     }

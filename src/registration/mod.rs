@@ -1,0 +1,243 @@
+//! Rigid registration with IRLS (§3) weighted by SIE (§4) or a baseline cost (§5):
+//! from given correspondences (the paper's simulation, §6) or ICP on two clouds.
+//!
+//! Transforms are 4×4 homogeneous `T_target_source`: p_target = T · p_source.
+
+mod driver;
+
+use nalgebra::Matrix4;
+
+use crate::cost::CostFunction;
+use crate::noise::{NoiseModel, NoiseScales};
+use crate::sie::{HistogramModel, SieOptions};
+
+/// A 3-D point.
+pub type Point = [f64; 3];
+
+/// Residual used by ICP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    /// r = T·a − b (3 columns).
+    PointToPoint,
+    /// r = n_bᵀ(T·a − b) with the target normal n_b (1 column).
+    PointToPlane,
+}
+
+/// Why the iteration stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// The last update was below both tolerances in the final round (for SIE: after β ≪ σ).
+    Converged,
+    /// `max_iterations` updates were made without converging.
+    IterationLimit,
+    /// The problem has no unique solution: no correspondence with weight > 0, or the weighted
+    /// system is rank deficient (e.g. collinear points, one plane for point-to-plane). The
+    /// transform is the best constrained estimate reached.
+    Degenerate,
+}
+
+/// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegistrationConfig {
+    pub cost: CostFunction,
+    pub sie: SieOptions,
+    /// ICP only; correspondence registration always uses point-to-point.
+    pub metric: Metric,
+    /// Cap on IRLS updates (each is one match + weight + solve step).
+    pub max_iterations: u32,
+    /// Converged when the update moves the translation by less than this (input units) …
+    pub translation_tolerance: f64,
+    /// … and rotates by less than this (radians).
+    pub rotation_tolerance: f64,
+    /// Built-in noise normalisation (§4.4); a `NoiseScales` callback passed to the registration
+    /// overrides it.
+    pub noise: NoiseModel,
+    /// β₀ in normalised units; `None` = RMS of the initial residuals (§4.3).
+    pub initial_beta: Option<f64>,
+    /// β ← shrink·β after each convergence (§4.3: 0.5).
+    pub beta_shrink: f64,
+    /// Annealing ends when β < ratio·σ ("β ≪ σ").
+    pub beta_stop_ratio: f64,
+    /// ICP: use at most this many randomly chosen source points per iteration (0 = all).
+    pub max_correspondences: usize,
+    /// ICP point-to-plane: neighbours for PCA normals when the caller gives none.
+    pub normal_neighbours: usize,
+    /// Worker threads for matching and normals (0 = all cores, 1 = the caller's thread only).
+    pub threads: usize,
+    /// Seed of the correspondence sampling.
+    pub seed: u64,
+    /// Record one `TraceEntry` per iteration.
+    pub record_trace: bool,
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        RegistrationConfig {
+            cost: CostFunction::Sie,
+            sie: SieOptions::default(),
+            metric: Metric::PointToPlane,
+            max_iterations: 200,
+            translation_tolerance: 1e-6,
+            rotation_tolerance: 1e-6,
+            noise: NoiseModel::Constant,
+            initial_beta: None,
+            beta_shrink: 0.5,
+            beta_stop_ratio: 0.01,
+            max_correspondences: 0,
+            normal_neighbours: 10,
+            threads: 0,
+            seed: 0x5EED,
+            record_trace: false,
+        }
+    }
+}
+
+impl RegistrationConfig {
+    /// Checks every setting; the message names the first bad one.
+    pub fn validate(&self) -> Result<(), Error> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        self.cost.validate().or_else(bad)?;
+        self.sie.validate().or_else(bad)?;
+        if self.max_iterations == 0 {
+            return bad("max_iterations must be >= 1".into());
+        }
+        for (name, v) in [
+            ("translation_tolerance", self.translation_tolerance),
+            ("rotation_tolerance", self.rotation_tolerance),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name} must be finite and >= 0, got {v}"));
+            }
+        }
+        if let Some(b) = self.initial_beta {
+            if !(b.is_finite() && b >= 0.0) {
+                return bad(format!("initial_beta must be finite and >= 0, got {b}"));
+            }
+        }
+        if !(self.beta_shrink > 0.0 && self.beta_shrink < 1.0) {
+            return bad(format!("beta_shrink must be in (0, 1), got {}", self.beta_shrink));
+        }
+        if !(self.beta_stop_ratio > 0.0 && self.beta_stop_ratio.is_finite()) {
+            return bad(format!(
+                "beta_stop_ratio must be finite and > 0, got {}",
+                self.beta_stop_ratio
+            ));
+        }
+        if !(3..=1000).contains(&self.normal_neighbours) {
+            return bad(format!(
+                "normal_neighbours must be in 3..=1000, got {}",
+                self.normal_neighbours
+            ));
+        }
+        if self.threads > 1024 {
+            return bad(format!("threads must be <= 1024, got {}", self.threads));
+        }
+        Ok(())
+    }
+}
+
+/// One IRLS iteration, for plotting convergence.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TraceEntry {
+    /// 1-based update count.
+    pub iteration: u32,
+    /// True while β is being annealed; false in the final round (and for baselines).
+    pub annealing: bool,
+    /// σ of the first histogram (normalised units); the baseline's scale for other costs.
+    pub sigma: f64,
+    pub beta: f64,
+    pub penalty: f64,
+    /// Mean inlier probability over the correspondences of this iteration.
+    pub inlier_fraction: f64,
+    /// Weighted RMS residual of this iteration (input units).
+    pub rmse: f64,
+    /// Size of this update.
+    pub translation_change: f64,
+    pub rotation_change: f64,
+    pub correspondences: usize,
+}
+
+/// Everything a registration reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegistrationResult {
+    /// T_target_source: p_target = T · p_source.
+    pub transform: Matrix4<f64>,
+    pub stop_reason: StopReason,
+    pub converged: bool,
+    /// Number of updates made.
+    pub iterations: u32,
+    /// Fitted σ_j per histogram (normalised units; input units with the constant noise model).
+    pub sigma: Vec<f64>,
+    /// Final β_j per histogram (empty for baselines).
+    pub beta: Vec<f64>,
+    /// Final k (the first histogram's).
+    pub penalty: f64,
+    /// Final noise shape p (2 unless estimated).
+    pub noise_shape: f64,
+    /// Σ_i P(I|r_i) / n_source at the returned transform (unmatched points count 0).
+    pub inlier_fraction: f64,
+    /// sqrt(Σ P_i‖r_i‖² / Σ P_i) at the returned transform, input units (‖r‖ is the plane
+    /// distance for point-to-plane).
+    pub rmse: f64,
+    /// Per source point, P(I|r) at the returned transform (0 if unmatched). For baseline costs:
+    /// the IRLS weight divided by the largest weight.
+    pub probabilities: Vec<f64>,
+    /// Per source point, the matched target index (-1 if unmatched).
+    pub correspondences: Vec<i64>,
+    /// Last fitted histograms (SIE only), for the paper's Fig. 1.
+    pub histograms: Vec<HistogramModel>,
+    /// Per-iteration trace when `record_trace` is set.
+    pub trace: Vec<TraceEntry>,
+}
+
+/// Why a registration could not run. Nothing is returned with an error.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Error {
+    InvalidArgument(String),
+    /// A NaN or infinite coordinate or value; the message names the array and first index.
+    NonFinite(String),
+    TooFewPoints(String),
+    /// The noise callback failed or returned bad scales.
+    Callback(String),
+}
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Error::InvalidArgument(m) | Error::NonFinite(m) | Error::TooFewPoints(m) | Error::Callback(m) => {
+                f.write_str(m)
+            }
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+/// Standalone SIE on a residual matrix.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InlierEstimate {
+    /// P(I|R_i) per row.
+    pub probabilities: Vec<f64>,
+    /// One model per histogram.
+    pub models: Vec<HistogramModel>,
+    /// P(I): mean per-component posterior.
+    pub prior: f64,
+}
+
+pub use driver::{estimate_inliers, register_clouds, register_correspondences};
+
+/// Noise scaling for a registration: the configured built-in model or a caller's callback.
+pub(crate) fn noise_source<'a>(
+    config: &'a RegistrationConfig,
+    callback: Option<&'a mut dyn NoiseScales>,
+    builtin: &'a mut NoiseModel,
+) -> Option<&'a mut dyn NoiseScales> {
+    match callback {
+        Some(cb) => Some(cb),
+        None if config.noise == NoiseModel::Constant => None,
+        None => {
+            *builtin = config.noise;
+            Some(builtin)
+        }
+    }
+}
