@@ -1,9 +1,24 @@
-//! The IRLS driver: β annealing (§4.3), adaptive k (§4.5), convergence and stop reasons.
+//! The IRLS driver: β annealing (§4.3), adaptive k (§4.5), convergence and stop reasons,
+//! shared by correspondence registration and ICP.
 use nalgebra::Matrix4;
 
-use super::{Error, InlierEstimate, Point, RegistrationConfig, RegistrationResult};
-use crate::noise::NoiseScales;
-use crate::sie::SieOptions;
+use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
+use super::{Error, InlierEstimate, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry};
+use crate::cost::{CostFunction, baseline_weights};
+use crate::geometry::{rotation_part, transform_change};
+use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
+use crate::parallel::Workers;
+use crate::sie::{SieEstimator, SieOptions};
+
+/// A β level has converged when one update moves the correspondences by less than this
+/// fraction of the current model width σ+β (normalised RMS displacement).
+const LEVEL_TOLERANCE: f64 = 0.01;
+/// At most this many updates per β level before β shrinks anyway: with many outliers a level
+/// can wander at the scale of σ+β without settling (the authors' driver likewise makes at most
+/// 3 model updates per level).
+const MAX_LEVEL_ITERATIONS: u32 = 5;
+/// δ of eq. (regprob3GGD) relative to σ+β: bounds the weight max(‖r‖, δ)^(p-2) for p < 2.
+const SHAPE_DELTA: f64 = 1e-3;
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
 pub fn register_correspondences(
@@ -13,13 +28,26 @@ pub fn register_correspondences(
     config: &RegistrationConfig,
     noise: Option<&mut dyn NoiseScales>,
 ) -> Result<RegistrationResult, Error> {
-    let _ = (source, target, init, config, noise);
-    Err(Error::InvalidArgument("not implemented yet".into()))
+    config.validate()?;
+    if source.len() != target.len() {
+        return Err(Error::InvalidArgument(format!(
+            "source has {} points but target has {}; correspondences must pair them one to one",
+            source.len(),
+            target.len()
+        )));
+    }
+    require_points("correspondences", source.len(), 3)?;
+    require_finite("source", source)?;
+    require_finite("target", target)?;
+    let init = checked_initial_guess(init)?;
+    let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;
+    let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
+    run(&mut problem, init, config)
 }
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
-/// `target_normals` (unit, one per target point) are used for point-to-plane; without them
-/// normals come from k-NN PCA on the target.
+/// `target_normals` (one per target point; zero vectors mark points without a normal) are used
+/// for point-to-plane; without them normals come from k-NN PCA on the target.
 pub fn register_clouds(
     source: &[Point],
     target: &[Point],
@@ -28,12 +56,32 @@ pub fn register_clouds(
     config: &RegistrationConfig,
     noise: Option<&mut dyn NoiseScales>,
 ) -> Result<RegistrationResult, Error> {
-    let _ = (source, target, target_normals, init, config, noise);
-    Err(Error::InvalidArgument("not implemented yet".into()))
+    config.validate()?;
+    require_points("source", source.len(), 3)?;
+    require_points("target", target.len(), 3)?;
+    require_finite("source", source)?;
+    require_finite("target", target)?;
+    if let Some(normals) = target_normals {
+        if normals.len() != target.len() {
+            return Err(Error::InvalidArgument(format!(
+                "target has {} points but {} normals",
+                target.len(),
+                normals.len()
+            )));
+        }
+        require_finite("target normals", normals)?;
+    }
+    let init = checked_initial_guess(init)?;
+    let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;
+    let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
+    let mut problem = CloudProblem::new(source, target, target_normals, source_sigma, target_sigma, config, workers)
+        .map_err(Error::InvalidArgument)?;
+    run(&mut problem, init, config)
 }
 
 /// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
-/// given; β is the regulariser (0 for none). Fits with k = k₀, adapts k from P(I|H) and refits.
+/// given; β is the regulariser (0 for none). Fits with k = k₀, then adapts k from P(I|H) and
+/// refits (§4.5), and returns P(I|R_i) per row.
 pub fn estimate_inliers(
     residuals: &[f64],
     cols: usize,
@@ -41,6 +89,382 @@ pub fn estimate_inliers(
     beta: f64,
     options: &SieOptions,
 ) -> Result<InlierEstimate, Error> {
-    let _ = (residuals, cols, row_scales, beta, options);
-    Err(Error::InvalidArgument("not implemented yet".into()))
+    options.validate().map_err(Error::InvalidArgument)?;
+    if cols == 0 {
+        return Err(Error::InvalidArgument("cols must be >= 1".into()));
+    }
+    if residuals.len() % cols != 0 {
+        return Err(Error::InvalidArgument(format!(
+            "{} residual values do not form rows of {cols}",
+            residuals.len()
+        )));
+    }
+    let rows = residuals.len() / cols;
+    require_points("residual rows", rows, 1)?;
+    if let Some(i) = residuals.iter().position(|v| !v.is_finite()) {
+        return Err(Error::NonFinite(format!("residuals[{i}] is {}", residuals[i])));
+    }
+    if !(beta.is_finite() && beta >= 0.0) {
+        return Err(Error::InvalidArgument(format!("beta must be finite and >= 0, got {beta}")));
+    }
+    let normalised: Vec<f64> = match row_scales {
+        None => residuals.to_vec(),
+        Some(scales) => {
+            if scales.len() != rows {
+                return Err(Error::InvalidArgument(format!("{} row scales for {rows} rows", scales.len())));
+            }
+            if let Some(i) = scales.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+                return Err(Error::InvalidArgument(format!(
+                    "row_scales[{i}] is {}; scales must be finite and > 0",
+                    scales[i]
+                )));
+            }
+            residuals.chunks_exact(cols).zip(scales).flat_map(|(row, s)| row.iter().map(move |r| r / s)).collect()
+        }
+    };
+    let mut sie = SieEstimator::new(options.clone());
+    sie.prepare(&normalised, cols);
+    sie.set_beta(&[beta]);
+    sie.fit(&normalised, cols);
+    sie.adapt_penalty();
+    sie.fit(&normalised, cols);
+    let mut probabilities = vec![0.0; rows];
+    let prior = sie.probabilities(&normalised, cols, &mut probabilities);
+    Ok(InlierEstimate {
+        probabilities,
+        models: sie.models().to_vec(),
+        prior,
+    })
+}
+
+fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error> {
+    if count < minimum {
+        return Err(Error::TooFewPoints(format!("{what}: {count} given, at least {minimum} needed")));
+    }
+    Ok(())
+}
+
+fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
+    match points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        None => Ok(()),
+        Some(i) => Err(Error::NonFinite(format!("{what}[{i}] = {:?} is not finite", points[i]))),
+    }
+}
+
+/// The initial guess must be a rigid transform: finite, last row 0 0 0 1, R orthonormal with
+/// det +1 (to 1e-6).
+pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>, Error> {
+    let Some(t) = init else {
+        return Ok(Matrix4::identity());
+    };
+    let bad = |m: &str| Err(Error::InvalidArgument(format!("initial guess {m}")));
+    if !t.iter().all(|v| v.is_finite()) {
+        return bad("has a non-finite entry");
+    }
+    if t.row(3).iter().zip([0.0, 0.0, 0.0, 1.0]).any(|(a, b)| (a - b).abs() > 1e-9) {
+        return bad("must have last row 0 0 0 1");
+    }
+    let r = rotation_part(t);
+    if (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max() > 1e-6 || r.determinant() < 0.0 {
+        return bad("rotation block is not a proper rotation (orthonormal, det +1)");
+    }
+    Ok(crate::geometry::orthonormalised(t))
+}
+
+/// Per-point σ of both clouds (§4.4), or `None` when noise is constant.
+type Sigmas = (Option<Vec<f64>>, Option<Vec<f64>>);
+
+fn noise_sigmas(
+    config: &RegistrationConfig,
+    callback: Option<&mut dyn NoiseScales>,
+    source: &[Point],
+    target: &[Point],
+) -> Result<Sigmas, Error> {
+    let mut builtin = config.noise;
+    let scales: &mut dyn NoiseScales = match callback {
+        Some(cb) => cb,
+        None if config.noise == NoiseModel::Constant => return Ok((None, None)),
+        None => &mut builtin,
+    };
+    let s = cloud_sigmas(scales, CloudRole::Source, source).map_err(Error::Callback)?;
+    let t = cloud_sigmas(scales, CloudRole::Target, target).map_err(Error::Callback)?;
+    Ok((Some(s), Some(t)))
+}
+
+/// How correspondences are weighted.
+enum Weighting {
+    /// `frozen`: the final round has settled at the model's scale and stops refitting, so IRLS
+    /// can converge on a fixed model instead of chasing histogram bin-count jitter.
+    Sie {
+        estimator: SieEstimator,
+        annealing: bool,
+        frozen: bool,
+    },
+    Baseline { cost: CostFunction, scale: f64 },
+}
+
+/// Residuals divided by F, and the IRLS weights (eq. regprob2).
+struct Workspace {
+    normalised: Vec<f64>,
+    weights: Vec<f64>,
+    probabilities: Vec<f64>,
+}
+
+impl Weighting {
+    fn new(config: &RegistrationConfig) -> Self {
+        match config.cost {
+            CostFunction::Sie => Weighting::Sie {
+                estimator: SieEstimator::new(config.sie.clone()),
+                annealing: true,
+                frozen: false,
+            },
+            cost => Weighting::Baseline { cost, scale: 0.0 },
+        }
+    }
+
+    /// Fits the cost to this iteration's residuals and fills `work.weights`.
+    fn update(&mut self, rows: &Rows, cols: usize, config: &RegistrationConfig, first: bool, work: &mut Workspace) {
+        let n = rows.len();
+        work.weights.resize(n, 0.0);
+        work.probabilities.resize(n, 0.0);
+        match self {
+            Weighting::Sie {
+                estimator,
+                annealing,
+                frozen,
+            } => {
+                if first {
+                    estimator.prepare(&work.normalised, cols);
+                    let beta = match config.initial_beta {
+                        Some(b) => vec![b],
+                        None => estimator.residual_rms(&work.normalised, cols),
+                    };
+                    estimator.set_beta(&beta);
+                }
+                if !*frozen {
+                    if !*annealing {
+                        // §4.5: after convergence, k = P(I|H)^-3 from the data at hand.
+                        estimator.adapt_penalty();
+                    }
+                    estimator.fit(&work.normalised, cols);
+                }
+                estimator.probabilities(&work.normalised, cols, &mut work.probabilities);
+                let p = estimator.mean_shape();
+                let width = estimator.effective_scales().into_iter().fold(f64::INFINITY, f64::min);
+                let delta = (SHAPE_DELTA * width).max(1e-12);
+                for i in 0..n {
+                    // eq. (regprob3) / (regprob3GGD): w = σ^-p·max(‖r‖,δ)^(p-2)·P(I|r); σ^-p is common
+                    // to all rows and dropped, F(i)^-2 carries the per-row noise (§4.4).
+                    let shape_factor = if p == 2.0 {
+                        1.0
+                    } else {
+                        row_norm(&work.normalised, cols, i).max(delta).powf(p - 2.0)
+                    };
+                    work.weights[i] = work.probabilities[i] * shape_factor / rows.scale[i].powi(2);
+                }
+            }
+            Weighting::Baseline { cost, scale } => {
+                *scale = baseline_weights(*cost, &work.normalised, cols, &mut work.weights);
+                for (w, f) in work.weights.iter_mut().zip(&rows.scale) {
+                    *w /= f * f;
+                }
+            }
+        }
+    }
+
+    /// Per-row probabilities at the final transform: P(I|r) for SIE, weight / max weight otherwise.
+    fn final_probabilities(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
+        let n = rows.len();
+        work.probabilities.resize(n, 0.0);
+        match self {
+            Weighting::Sie { estimator, .. } => {
+                estimator.probabilities(&work.normalised, cols, &mut work.probabilities);
+            }
+            Weighting::Baseline { cost, .. } => {
+                work.weights.resize(n, 0.0);
+                baseline_weights(*cost, &work.normalised, cols, &mut work.weights);
+                let largest = work.weights.iter().cloned().fold(0.0, f64::max);
+                for (p, w) in work.probabilities.iter_mut().zip(&work.weights) {
+                    *p = if largest > 0.0 { w / largest } else { 0.0 };
+                }
+            }
+        }
+    }
+
+    fn sigma_beta_penalty(&self) -> (Vec<f64>, Vec<f64>, f64, f64) {
+        match self {
+            Weighting::Sie { estimator, .. } => (
+                estimator.models().iter().map(|m| m.shape.sigma).collect(),
+                estimator.models().iter().map(|m| m.beta).collect(),
+                estimator.models().first().map_or(0.0, |m| m.penalty),
+                estimator.mean_shape(),
+            ),
+            Weighting::Baseline { scale, .. } => (vec![*scale], Vec::new(), 0.0, 2.0),
+        }
+    }
+}
+
+fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
+    values[row * cols..(row + 1) * cols].iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
+    out.clear();
+    out.extend(
+        rows.residual
+            .chunks_exact(cols)
+            .zip(&rows.scale)
+            .flat_map(|(row, f)| row.iter().map(move |r| r / f)),
+    );
+}
+
+/// The IRLS loop (eq. regprob2) with SIE's β schedule: run to convergence, halve β, repeat
+/// until β ≪ σ, then a final round with adaptive k (§4.3, §4.5).
+fn run(problem: &mut dyn Problem, init: Matrix4<f64>, config: &RegistrationConfig) -> Result<RegistrationResult, Error> {
+    let cols = problem.cols();
+    let mut transform = init;
+    let mut weighting = Weighting::new(config);
+    let mut work = Workspace {
+        normalised: Vec::new(),
+        weights: Vec::new(),
+        probabilities: Vec::new(),
+    };
+    let mut stop = StopReason::IterationLimit;
+    let mut rank_deficient = false;
+    let mut iterations = 0;
+    let mut trace = Vec::new();
+    let mut level_iterations = 0u32;
+    for iteration in 1..=config.max_iterations {
+        let rows = problem.linearise(&transform);
+        if rows.is_empty() {
+            stop = StopReason::Degenerate;
+            break;
+        }
+        normalise(rows, cols, &mut work.normalised);
+        weighting.update(rows, cols, config, iteration == 1, &mut work);
+        let Some(solve) = problem.solve(&transform, &work.weights) else {
+            stop = StopReason::Degenerate;
+            break;
+        };
+        iterations = iteration;
+        let rows = problem.rows();
+        let (rotation_change, translation_change) = transform_change(&transform, &solve.transform);
+        let displacement = problem.displacement(&transform, &solve.transform);
+        transform = solve.transform;
+        rank_deficient = solve.rank_deficient;
+        if config.record_trace {
+            trace.push(trace_entry(
+                iteration,
+                &weighting,
+                rows,
+                cols,
+                &work,
+                rotation_change,
+                translation_change,
+            ));
+        }
+        let below_tolerance =
+            translation_change <= config.translation_tolerance && rotation_change <= config.rotation_tolerance;
+        if let Weighting::Sie {
+            estimator,
+            annealing,
+            frozen,
+        } = &mut weighting
+        {
+            let width = estimator.effective_scales().into_iter().fold(f64::INFINITY, f64::min);
+            let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * width;
+            level_iterations += 1;
+            if *annealing {
+                if settled || level_iterations >= MAX_LEVEL_ITERATIONS {
+                    level_iterations = 0;
+                    if estimator.beta_negligible(config.beta_stop_ratio) {
+                        *annealing = false;
+                    } else {
+                        estimator.shrink_beta(config.beta_shrink);
+                    }
+                }
+                continue;
+            }
+            *frozen |= settled;
+        }
+        if below_tolerance {
+            stop = StopReason::Converged;
+            break;
+        }
+    }
+    if rank_deficient {
+        stop = StopReason::Degenerate;
+    }
+
+    // Report everything at the returned transform, for every source point.
+    let source_count = problem.source_count();
+    let rows = problem.evaluate_all(&transform);
+    normalise(rows, cols, &mut work.normalised);
+    weighting.final_probabilities(rows, cols, &mut work);
+    let mut probabilities = vec![0.0; source_count];
+    let mut correspondences = vec![-1i64; source_count];
+    let (mut weight_sum, mut weighted_square) = (0.0, 0.0);
+    for (i, &p) in work.probabilities.iter().enumerate() {
+        let s = rows.source[i] as usize;
+        probabilities[s] = p;
+        correspondences[s] = rows.target[i] as i64;
+        weight_sum += p;
+        weighted_square += p * row_norm(&rows.residual, cols, i).powi(2);
+    }
+    let (sigma, beta, penalty, noise_shape) = weighting.sigma_beta_penalty();
+    let histograms = match &weighting {
+        Weighting::Sie { estimator, .. } => estimator.models().to_vec(),
+        Weighting::Baseline { .. } => Vec::new(),
+    };
+    Ok(RegistrationResult {
+        transform,
+        stop_reason: stop,
+        converged: stop == StopReason::Converged,
+        iterations,
+        sigma,
+        beta,
+        penalty,
+        noise_shape,
+        inlier_fraction: weight_sum / source_count as f64,
+        rmse: if weight_sum > 0.0 { (weighted_square / weight_sum).sqrt() } else { 0.0 },
+        probabilities,
+        correspondences,
+        histograms,
+        trace,
+    })
+}
+
+fn trace_entry(
+    iteration: u32,
+    weighting: &Weighting,
+    rows: &Rows,
+    cols: usize,
+    work: &Workspace,
+    rotation_change: f64,
+    translation_change: f64,
+) -> TraceEntry {
+    let (sigma, beta, penalty, _) = weighting.sigma_beta_penalty();
+    let n = rows.len();
+    let mean_probability = match weighting {
+        Weighting::Sie { .. } => work.probabilities.iter().sum::<f64>() / n as f64,
+        Weighting::Baseline { .. } => {
+            let largest = work.weights.iter().cloned().fold(0.0, f64::max);
+            if largest > 0.0 { work.weights.iter().sum::<f64>() / (n as f64 * largest) } else { 0.0 }
+        }
+    };
+    let weight_sum: f64 = work.weights.iter().sum();
+    let weighted_square: f64 =
+        (0..n).map(|i| work.weights[i] * row_norm(&rows.residual, cols, i).powi(2)).sum();
+    TraceEntry {
+        iteration,
+        annealing: matches!(weighting, Weighting::Sie { annealing: true, .. }),
+        sigma: sigma.first().copied().unwrap_or(0.0),
+        beta: beta.first().copied().unwrap_or(0.0),
+        penalty,
+        inlier_fraction: mean_probability,
+        rmse: if weight_sum > 0.0 { (weighted_square / weight_sum).sqrt() } else { 0.0 },
+        translation_change,
+        rotation_change,
+        correspondences: n,
+    }
 }

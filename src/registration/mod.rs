@@ -4,11 +4,12 @@
 //! Transforms are 4×4 homogeneous `T_target_source`: p_target = T · p_source.
 
 mod driver;
+mod problem;
 
 use nalgebra::Matrix4;
 
 use crate::cost::CostFunction;
-use crate::noise::{NoiseModel, NoiseScales};
+use crate::noise::NoiseModel;
 use crate::sie::{HistogramModel, SieOptions};
 
 /// A 3-D point.
@@ -225,19 +226,3 @@ pub struct InlierEstimate {
 }
 
 pub use driver::{estimate_inliers, register_clouds, register_correspondences};
-
-/// Noise scaling for a registration: the configured built-in model or a caller's callback.
-pub(crate) fn noise_source<'a>(
-    config: &'a RegistrationConfig,
-    callback: Option<&'a mut dyn NoiseScales>,
-    builtin: &'a mut NoiseModel,
-) -> Option<&'a mut dyn NoiseScales> {
-    match callback {
-        Some(cb) => Some(cb),
-        None if config.noise == NoiseModel::Constant => None,
-        None => {
-            *builtin = config.noise;
-            Some(builtin)
-        }
-    }
-}

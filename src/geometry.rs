@@ -1,0 +1,280 @@
+//! Rigid-transform helpers and the two weighted least-squares solves of the IRLS step
+//! (eq. regprob2): closed-form weighted Kabsch for point-to-point and one Gauss-Newton step for
+//! point-to-plane.
+use nalgebra::{Matrix3, Matrix4, Matrix6, Rotation3, SymmetricEigen, Vector3, Vector6};
+
+use crate::registration::Point;
+
+/// Singular-value ratio below which the point-to-point cross-covariance is rank ≤ 1
+/// (all points collinear or coincident: rotation about that line is undetermined).
+const KABSCH_RANK_RATIO: f64 = 1e-10;
+/// Eigenvalue ratio below which a direction of the (scaled) point-to-plane system is treated as
+/// unconstrained and left out of the step.
+const PLANE_RANK_RATIO: f64 = 1e-9;
+
+#[inline]
+pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
+    [
+        t[(0, 0)] * p[0] + t[(0, 1)] * p[1] + t[(0, 2)] * p[2] + t[(0, 3)],
+        t[(1, 0)] * p[0] + t[(1, 1)] * p[1] + t[(1, 2)] * p[2] + t[(1, 3)],
+        t[(2, 0)] * p[0] + t[(2, 1)] * p[1] + t[(2, 2)] * p[2] + t[(2, 3)],
+    ]
+}
+
+#[inline]
+pub fn vector(p: &Point) -> Vector3<f64> {
+    Vector3::new(p[0], p[1], p[2])
+}
+
+pub fn rotation_part(t: &Matrix4<f64>) -> Matrix3<f64> {
+    t.fixed_view::<3, 3>(0, 0).into_owned()
+}
+
+pub fn translation_part(t: &Matrix4<f64>) -> Vector3<f64> {
+    t.fixed_view::<3, 1>(0, 3).into_owned()
+}
+
+pub fn from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
+    let mut m = Matrix4::identity();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
+    m.fixed_view_mut::<3, 1>(0, 3).copy_from(t);
+    m
+}
+
+/// Rotation angle of a rotation matrix, accurate near 0 (atan2 of sin and cos).
+pub fn rotation_angle(r: &Matrix3<f64>) -> f64 {
+    let sin = 0.5
+        * Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]).norm();
+    let cos = 0.5 * (r.trace() - 1.0);
+    sin.atan2(cos)
+}
+
+/// Rotation angle (radians) and translation distance between two transforms.
+pub fn transform_change(old: &Matrix4<f64>, new: &Matrix4<f64>) -> (f64, f64) {
+    let dr = rotation_part(new) * rotation_part(old).transpose();
+    (rotation_angle(&dr), (translation_part(new) - translation_part(old)).norm())
+}
+
+/// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation.
+pub fn orthonormalised(t: &Matrix4<f64>) -> Matrix4<f64> {
+    let svd = rotation_part(t).svd(true, true);
+    let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
+    let mut d = Matrix3::identity();
+    d[(2, 2)] = (u * v_t).determinant().signum();
+    from_parts(&(u * d * v_t), &translation_part(t))
+}
+
+/// Result of one weighted solve.
+pub struct Solve {
+    pub transform: Matrix4<f64>,
+    /// Some direction of the problem was not constrained by the data.
+    pub rank_deficient: bool,
+}
+
+/// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
+/// `None` when the weights sum to zero.
+pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
+    let total: f64 = weights.iter().sum();
+    if !(total > 0.0) || !total.is_finite() {
+        return None;
+    }
+    let mut mean_a = Vector3::zeros();
+    let mut mean_b = Vector3::zeros();
+    for ((a, b), &w) in pairs.iter().zip(weights) {
+        mean_a += w * vector(a);
+        mean_b += w * vector(b);
+    }
+    mean_a /= total;
+    mean_b /= total;
+    // Centred second pass: exact for far-from-origin (e.g. georeferenced) coordinates.
+    let mut cross = Matrix3::zeros();
+    for ((a, b), &w) in pairs.iter().zip(weights) {
+        cross += w * (vector(a) - mean_a) * (vector(b) - mean_b).transpose();
+    }
+    let svd = cross.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let s = svd.singular_values;
+    let largest = s.max();
+    let rank_deficient = !(largest > 0.0) || s.iter().filter(|&&v| v > KABSCH_RANK_RATIO * largest).count() < 2;
+    // R = V·diag(1, 1, det(V·Uᵀ))·Uᵀ keeps a proper rotation.
+    let v = v_t.transpose();
+    let mut d = Matrix3::identity();
+    d[(2, 2)] = (v * u.transpose()).determinant().signum();
+    let r = v * d * u.transpose();
+    let t = mean_b - r * mean_a;
+    Some(Solve {
+        transform: from_parts(&r, &t),
+        rank_deficient,
+    })
+}
+
+/// One weighted Gauss-Newton step for Σ w_i (n_iᵀ(T·a_i − q_i))², linearised at the current
+/// transform. `points[i]` = (T·a_i, q_i, n_i). The update is the exact rotation about the
+/// weighted centroid (so rotation and translation are decoupled and well scaled); directions
+/// the data do not constrain are left unchanged. `None` when the weights sum to zero.
+pub fn point_to_plane_step(current: &Matrix4<f64>, points: &[(Point, Point, Point)], weights: &[f64]) -> Option<Solve> {
+    let total: f64 = weights.iter().sum();
+    if !(total > 0.0) || !total.is_finite() {
+        return None;
+    }
+    let mut centre = Vector3::zeros();
+    for ((p, _, _), &w) in points.iter().zip(weights) {
+        centre += w * vector(p);
+    }
+    centre /= total;
+    let spread = (points
+        .iter()
+        .zip(weights)
+        .map(|((p, _, _), &w)| w * (vector(p) - centre).norm_squared())
+        .sum::<f64>()
+        / total)
+        .sqrt();
+    // Rotation unknowns are scaled by the spread so all six columns have length units.
+    let length = if spread > 0.0 { spread } else { 1.0 };
+    let mut hessian = Matrix6::zeros();
+    let mut gradient = Vector6::zeros();
+    for ((p, q, n), &w) in points.iter().zip(weights) {
+        if w == 0.0 {
+            continue;
+        }
+        let normal = vector(n);
+        let arm = vector(p) - centre;
+        let residual = normal.dot(&(vector(p) - vector(q)));
+        let rot = arm.cross(&normal) / length;
+        let jac = Vector6::new(rot.x, rot.y, rot.z, normal.x, normal.y, normal.z);
+        hessian += w * jac * jac.transpose();
+        gradient += w * residual * jac;
+    }
+    let eigen = SymmetricEigen::new(hessian);
+    let largest = eigen.eigenvalues.max();
+    if !(largest > 0.0) || !largest.is_finite() {
+        return None;
+    }
+    let mut step = Vector6::zeros();
+    let mut rank_deficient = false;
+    for k in 0..6 {
+        let lambda = eigen.eigenvalues[k];
+        let direction = eigen.eigenvectors.column(k);
+        if lambda > PLANE_RANK_RATIO * largest {
+            step -= direction * (direction.dot(&gradient) / lambda);
+        } else {
+            rank_deficient = true;
+        }
+    }
+    let omega = Vector3::new(step[0], step[1], step[2]) / length;
+    let shift = Vector3::new(step[3], step[4], step[5]);
+    let rotation = Rotation3::new(omega).into_inner();
+    // p ↦ R(p − c) + c + v
+    let delta = from_parts(&rotation, &(centre - rotation * centre + shift));
+    Some(Solve {
+        transform: orthonormalised(&(delta * current)),
+        rank_deficient,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Translation3;
+
+    fn example_transform() -> Matrix4<f64> {
+        let r = Rotation3::from_euler_angles(0.3, -0.2, 0.5);
+        Translation3::new(0.4, -1.0, 2.0).to_homogeneous() * r.to_homogeneous()
+    }
+
+    fn cube_points() -> Vec<Point> {
+        (0..60)
+            .map(|i| {
+                let f = i as f64;
+                [(f * 0.37).sin() * 2.0, (f * 0.91).cos(), (f * 0.13).sin() * 3.0 + 0.1 * f]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn weighted_kabsch_recovers_exact_transform() {
+        let t = example_transform();
+        let pairs: Vec<(Point, Point)> = cube_points().iter().map(|a| (*a, transform_point(&t, a))).collect();
+        let solve = weighted_rigid_fit(&pairs, &vec![1.0; pairs.len()]).unwrap();
+        assert!((solve.transform - t).abs().max() < 1e-10);
+        assert!(!solve.rank_deficient);
+    }
+
+    #[test]
+    fn zero_weights_drop_outliers_from_kabsch() {
+        let t = example_transform();
+        let mut pairs: Vec<(Point, Point)> = cube_points().iter().map(|a| (*a, transform_point(&t, a))).collect();
+        let mut weights = vec![1.0; pairs.len()];
+        pairs.push(([0.0; 3], [100.0, 50.0, -3.0]));
+        weights.push(0.0);
+        let solve = weighted_rigid_fit(&pairs, &weights).unwrap();
+        assert!((solve.transform - t).abs().max() < 1e-10);
+    }
+
+    #[test]
+    fn collinear_points_are_rank_deficient() {
+        let pairs: Vec<(Point, Point)> = (0..10).map(|i| ([i as f64, 0.0, 0.0], [i as f64, 1.0, 0.0])).collect();
+        let solve = weighted_rigid_fit(&pairs, &vec![1.0; 10]).unwrap();
+        assert!(solve.rank_deficient);
+        assert!(solve.transform.iter().all(|v| v.is_finite()));
+        assert!(weighted_rigid_fit(&pairs, &vec![0.0; 10]).is_none());
+    }
+
+    #[test]
+    fn point_to_plane_converges_on_a_box() {
+        // Points on the six faces of a box, normals known: GN from a small offset converges.
+        let t_true = Translation3::new(0.05, -0.03, 0.02).to_homogeneous()
+            * Rotation3::from_euler_angles(0.03, 0.02, -0.04).to_homogeneous();
+        let mut target = Vec::new();
+        for i in 0..15 {
+            for j in 0..15 {
+                let (u, v) = (i as f64 / 14.0 * 2.0 - 1.0, j as f64 / 14.0 * 2.0 - 1.0);
+                for (p, n) in [
+                    ([u, v, 1.0], [0.0, 0.0, 1.0]),
+                    ([u, v, -1.0], [0.0, 0.0, -1.0]),
+                    ([u, 1.0, v], [0.0, 1.0, 0.0]),
+                    ([u, -1.0, v], [0.0, -1.0, 0.0]),
+                    ([1.0, u, v], [1.0, 0.0, 0.0]),
+                    ([-1.0, u, v], [-1.0, 0.0, 0.0]),
+                ] {
+                    target.push((p, n));
+                }
+            }
+        }
+        let inverse = t_true.try_inverse().unwrap();
+        let source: Vec<Point> = target.iter().map(|(p, _)| transform_point(&inverse, p)).collect();
+        let mut t = Matrix4::identity();
+        for _ in 0..10 {
+            let pts: Vec<(Point, Point, Point)> = source
+                .iter()
+                .zip(&target)
+                .map(|(a, (q, n))| (transform_point(&t, a), *q, *n))
+                .collect();
+            t = point_to_plane_step(&t, &pts, &vec![1.0; pts.len()]).unwrap().transform;
+        }
+        assert!((t - t_true).abs().max() < 1e-9, "{t}");
+    }
+
+    #[test]
+    fn single_plane_is_rank_deficient_and_finite() {
+        let pts: Vec<(Point, Point, Point)> = (0..100)
+            .map(|i| {
+                let p = [(i % 10) as f64, (i / 10) as f64, 0.1];
+                (p, [p[0], p[1], 0.0], [0.0, 0.0, 1.0])
+            })
+            .collect();
+        let solve = point_to_plane_step(&Matrix4::identity(), &pts, &vec![1.0; 100]).unwrap();
+        assert!(solve.rank_deficient);
+        // The constrained direction (z) is solved, the rest is left alone.
+        assert!((solve.transform[(2, 3)] + 0.1).abs() < 1e-12);
+        assert!(solve.transform[(0, 3)].abs() < 1e-12 && solve.transform[(1, 3)].abs() < 1e-12);
+    }
+
+    #[test]
+    fn rotation_angle_is_accurate_for_tiny_angles() {
+        let r = Rotation3::from_axis_angle(&Vector3::x_axis(), 1e-9).into_inner();
+        assert!((rotation_angle(&r) - 1e-9).abs() < 1e-15);
+        let r = Rotation3::from_axis_angle(&Vector3::y_axis(), 3.0).into_inner();
+        assert!((rotation_angle(&r) - 3.0).abs() < 1e-12);
+    }
+}
