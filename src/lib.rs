@@ -6,6 +6,7 @@
 //! * [`registration`]: rigid registration from correspondences or ICP on two clouds.
 //! * [`ffi`]: the C ABI (the only place with `unsafe`).
 pub mod cost;
+pub mod ffi;
 pub mod geometry;
 pub mod nn;
 pub mod noise;

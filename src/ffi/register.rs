@@ -1,0 +1,363 @@
+//! Registration entry points: clouds (float or double, optional target normals) and given
+//! correspondences. All share the same flow: check pointers and counts, copy the inputs, run
+//! the core, and only then write `out_T_target_source` and store the result.
+// The C signatures are fixed: frame-annotated names (`T_target_source`) and one argument per
+// array property.
+#![allow(non_snake_case, clippy::too_many_arguments)]
+
+use nalgebra::Matrix4;
+
+use super::boundary::{FfiError, boundary};
+use super::input::{Coordinate, check_output, read_points, read_transform, row_major, write_output};
+use super::{ContextState, sie_context, sie_status};
+use crate::noise::NoiseScales;
+use crate::registration::{Error, Point, RegistrationConfig, RegistrationResult};
+
+/// How far a given target normal's length may be from 1.
+const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
+
+/// A strided array of three coordinates per point, as passed by C.
+#[derive(Clone, Copy)]
+struct PointArray<T> {
+    xyz: *const T,
+    count: usize,
+    stride_bytes: usize,
+    name: &'static str,
+    count_name: &'static str,
+}
+
+impl<T: Coordinate> PointArray<T> {
+    /// # Safety
+    /// `xyz` is NULL or valid for `count` points at `stride_bytes`.
+    unsafe fn read(self) -> Result<Vec<Point>, FfiError> {
+        // A NULL array is reported as such even when its count is 0.
+        if self.count == 0 && !self.xyz.is_null() {
+            return Err(FfiError::new(
+                sie_status::TooFewPoints,
+                format!("{} is 0", self.count_name),
+            ));
+        }
+        // SAFETY: forwarded contract.
+        unsafe { read_points(self.xyz, self.count, self.stride_bytes, self.name) }
+    }
+}
+
+fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
+    for (index, normal) in normals.iter().enumerate() {
+        let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if (length - 1.0).abs() > NORMAL_LENGTH_TOLERANCE {
+            return Err(FfiError::invalid(format!(
+                "{name}[{index}] has length {length}; normals must be unit vectors"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Runs the core with the context's configuration and noise source; on success writes the
+/// transform and stores the result (the caller has already dropped the previous one).
+///
+/// # Safety
+/// `out_t_target_source` passed `check_output` and is valid for 16 writes.
+unsafe fn run_and_store(
+    state: &mut ContextState,
+    out_t_target_source: *mut f64,
+    run: impl FnOnce(&RegistrationConfig, Option<&mut dyn NoiseScales>) -> Result<RegistrationResult, Error>,
+) -> Result<(), FfiError> {
+    // The callback is Copy; a local copy keeps `state.config` borrowable alongside it.
+    let mut callback = state.noise_callback;
+    let noise = callback.as_mut().map(|c| c as &mut dyn NoiseScales);
+    let result = run(&state.config, noise)?;
+    // SAFETY: per the contract.
+    unsafe { write_output(out_t_target_source, &row_major(&result.transform)) };
+    state.result = Some(result);
+    Ok(())
+}
+
+/// # Safety
+/// The pointers satisfy the contract of the exported function calling this.
+unsafe fn register_clouds_from<T: Coordinate>(
+    ctx: *mut sie_context,
+    source: PointArray<T>,
+    target: PointArray<T>,
+    target_normals: Option<PointArray<T>>,
+    init_t_target_source: *const f64,
+    out_t_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |context| {
+        let mut state = context.state_mut()?;
+        state.result = None;
+        check_output(out_t_target_source, "out_T_target_source")?;
+        // SAFETY (all reads): the arrays and the transform are readable per the contract.
+        let source_points = unsafe { source.read() }?;
+        let target_points = unsafe { target.read() }?;
+        let normals = match target_normals {
+            Some(array) => {
+                let normals = unsafe { array.read() }?;
+                check_unit_normals(&normals, array.name)?;
+                Some(normals)
+            }
+            None => None,
+        };
+        let init: Option<Matrix4<f64>> =
+            unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
+        unsafe {
+            run_and_store(&mut state, out_t_target_source, |config, noise| {
+                crate::registration::register_clouds(
+                    &source_points,
+                    &target_points,
+                    normals.as_deref(),
+                    init.as_ref(),
+                    config,
+                    noise,
+                )
+            })
+        }
+    })
+}
+
+/// # Safety
+/// The pointers satisfy the contract of the exported function calling this.
+unsafe fn register_correspondences_from<T: Coordinate>(
+    ctx: *mut sie_context,
+    source: PointArray<T>,
+    target: PointArray<T>,
+    init_t_target_source: *const f64,
+    out_t_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |context| {
+        let mut state = context.state_mut()?;
+        state.result = None;
+        check_output(out_t_target_source, "out_T_target_source")?;
+        // SAFETY (all reads): the arrays and the transform are readable per the contract.
+        let source_points = unsafe { source.read() }?;
+        let target_points = unsafe { target.read() }?;
+        let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
+        unsafe {
+            run_and_store(&mut state, out_t_target_source, |config, noise| {
+                crate::registration::register_correspondences(
+                    &source_points,
+                    &target_points,
+                    init.as_ref(),
+                    config,
+                    noise,
+                )
+            })
+        }
+    })
+}
+
+/// Registers the source cloud onto the target cloud (ICP with nearest-neighbour matching)
+/// and returns T_target_source, which maps source points into the target frame:
+/// p_target = T*p_source.
+///
+/// Clouds are arrays of `float` x, y, z triples; point i starts `i * stride_bytes` bytes after
+/// the pointer (0 = packed, 12). A stride must be a multiple of 4 and at least 12, and the
+/// pointer 4-byte aligned; e.g. `&cloud[0].x` with stride `sizeof(pcl::PointXYZ)` (16).
+/// Point-to-plane estimates target normals from `normal_neighbours` neighbours (see
+/// `sie_context_register_with_normals` to pass them).
+///
+/// `init_T_target_source`: initial guess, 16 doubles ROW-major (T[4*row + col]; transpose
+/// Eigen's default column-major storage), a rigid transform with last row 0 0 0 1; NULL =
+/// identity. `out_T_target_source` (16 doubles, row-major) is written only on success; it may
+/// be the same array as the initial guess.
+///
+/// On success the result is stored in the context for the `sie_context_get_*` functions; on
+/// any error the previous result is discarded. Non-convergence is not an error (see
+/// `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
+/// transform), TOO_FEW_POINTS (a count is 0 or too small), NON_FINITE_INPUT (names the array
+/// and point index), CALLBACK_FAILED, BUSY.
+///
+/// # Safety
+/// `ctx` is NULL or a live context; each non-NULL array is readable for its count of points at
+/// its stride; `init_T_target_source` is NULL or readable for 16 doubles;
+/// `out_T_target_source` is NULL or writable for 16 doubles.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_register(
+    ctx: *mut sie_context,
+    source_xyz: *const f32,
+    source_count: usize,
+    source_stride_bytes: usize,
+    target_xyz: *const f32,
+    target_count: usize,
+    target_stride_bytes: usize,
+    init_T_target_source: *const f64,
+    out_T_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        register_clouds_from(
+            ctx,
+            source_array(source_xyz, source_count, source_stride_bytes),
+            target_array(target_xyz, target_count, target_stride_bytes),
+            None,
+            init_T_target_source,
+            out_T_target_source,
+        )
+    }
+}
+
+/// `sie_context_register` for `double` clouds: stride 0 = packed (24), otherwise a multiple of
+/// 8 and at least 24; pointers 8-byte aligned.
+///
+/// # Safety
+/// As `sie_context_register`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_register_d(
+    ctx: *mut sie_context,
+    source_xyz: *const f64,
+    source_count: usize,
+    source_stride_bytes: usize,
+    target_xyz: *const f64,
+    target_count: usize,
+    target_stride_bytes: usize,
+    init_T_target_source: *const f64,
+    out_T_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        register_clouds_from(
+            ctx,
+            source_array(source_xyz, source_count, source_stride_bytes),
+            target_array(target_xyz, target_count, target_stride_bytes),
+            None,
+            init_T_target_source,
+            out_T_target_source,
+        )
+    }
+}
+
+/// `sie_context_register` with one unit normal per target point (float nx, ny, nz at
+/// `target_normals_stride_bytes`, 0 = packed), used by point-to-plane instead of estimating
+/// them. E.g. for a `pcl::PointCloud<pcl::PointNormal>`: `&cloud[0].normal_x` with stride 48.
+/// A normal whose length differs from 1 by more than 1e-3 is INVALID_ARGUMENT; a NaN normal is
+/// NON_FINITE_INPUT.
+///
+/// # Safety
+/// As `sie_context_register`; `target_normals` is NULL or readable for `target_count` normals
+/// at its stride.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_register_with_normals(
+    ctx: *mut sie_context,
+    source_xyz: *const f32,
+    source_count: usize,
+    source_stride_bytes: usize,
+    target_xyz: *const f32,
+    target_count: usize,
+    target_stride_bytes: usize,
+    target_normals: *const f32,
+    target_normals_stride_bytes: usize,
+    init_T_target_source: *const f64,
+    out_T_target_source: *mut f64,
+) -> sie_status {
+    let normals = PointArray {
+        xyz: target_normals,
+        count: target_count,
+        stride_bytes: target_normals_stride_bytes,
+        name: "target_normals",
+        count_name: "target_count",
+    };
+    // SAFETY: forwarded contract.
+    unsafe {
+        register_clouds_from(
+            ctx,
+            source_array(source_xyz, source_count, source_stride_bytes),
+            target_array(target_xyz, target_count, target_stride_bytes),
+            Some(normals),
+            init_T_target_source,
+            out_T_target_source,
+        )
+    }
+}
+
+/// Registers matched pairs: `source_xyz` point i corresponds to `target_xyz` point i (both
+/// `count` float points, strides as in `sie_context_register`), always point-to-point. The
+/// result's correspondences are the identity (i -> i). Transform arguments, errors and result
+/// storage as in `sie_context_register`.
+///
+/// # Safety
+/// As `sie_context_register`, with `count` points in each array.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_register_correspondences(
+    ctx: *mut sie_context,
+    source_xyz: *const f32,
+    source_stride_bytes: usize,
+    target_xyz: *const f32,
+    target_stride_bytes: usize,
+    count: usize,
+    init_T_target_source: *const f64,
+    out_T_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        register_correspondences_from(
+            ctx,
+            pair_array(source_xyz, count, source_stride_bytes, "source_xyz"),
+            pair_array(target_xyz, count, target_stride_bytes, "target_xyz"),
+            init_T_target_source,
+            out_T_target_source,
+        )
+    }
+}
+
+/// `sie_context_register_correspondences` for `double` points (strides as in
+/// `sie_context_register_d`).
+///
+/// # Safety
+/// As `sie_context_register_correspondences`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_register_correspondences_d(
+    ctx: *mut sie_context,
+    source_xyz: *const f64,
+    source_stride_bytes: usize,
+    target_xyz: *const f64,
+    target_stride_bytes: usize,
+    count: usize,
+    init_T_target_source: *const f64,
+    out_T_target_source: *mut f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        register_correspondences_from(
+            ctx,
+            pair_array(source_xyz, count, source_stride_bytes, "source_xyz"),
+            pair_array(target_xyz, count, target_stride_bytes, "target_xyz"),
+            init_T_target_source,
+            out_T_target_source,
+        )
+    }
+}
+
+fn source_array<T>(xyz: *const T, count: usize, stride_bytes: usize) -> PointArray<T> {
+    PointArray {
+        xyz,
+        count,
+        stride_bytes,
+        name: "source_xyz",
+        count_name: "source_count",
+    }
+}
+
+fn target_array<T>(xyz: *const T, count: usize, stride_bytes: usize) -> PointArray<T> {
+    PointArray {
+        xyz,
+        count,
+        stride_bytes,
+        name: "target_xyz",
+        count_name: "target_count",
+    }
+}
+
+fn pair_array<T>(xyz: *const T, count: usize, stride_bytes: usize, name: &'static str) -> PointArray<T> {
+    PointArray {
+        xyz,
+        count,
+        stride_bytes,
+        name,
+        count_name: "count",
+    }
+}

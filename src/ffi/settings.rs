@@ -1,0 +1,318 @@
+//! Configuration setters. Each builds the new configuration, validates all of it and only
+//! then replaces the old one, so a rejected value leaves the context unchanged.
+
+use core::ffi::c_void;
+
+use super::boundary::{FfiError, boundary};
+use super::callback::NoiseCallback;
+use super::{
+    CEnum, sie_context, sie_cost_function, sie_histogram_mode, sie_metric, sie_noise_fn, sie_noise_model,
+    sie_status,
+};
+use crate::cost::CostFunction;
+use crate::noise::NoiseModel;
+use crate::registration::{Metric, RegistrationConfig};
+use crate::sie::{HistogramMode, NoiseShape};
+
+/// Student-t degrees of freedom when the caller passes 0 (Kerl et al. 2013).
+const DEFAULT_STUDENT_T_DOF: f64 = 5.0;
+
+/// # Safety
+/// `ctx` is NULL or a live context.
+unsafe fn update_config(
+    ctx: *mut sie_context,
+    change: impl FnOnce(&mut RegistrationConfig) -> Result<(), FfiError>,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |context| {
+        let mut state = context.state_mut()?;
+        let mut config = state.config.clone();
+        change(&mut config)?;
+        config.validate()?;
+        state.config = config;
+        Ok(())
+    })
+}
+
+/// Selects the cost function (a `sie_cost_function`). `parameter` is the TRUNCATED_L2
+/// threshold, the LP exponent p in (0, 2], the STUDENT_T degrees of freedom (0 selects 5), or
+/// the HUBER / CAUCHY / GEMAN_MCCLURE / TUKEY scale, in normalised residual units (input units
+/// with the constant noise model); it is ignored for SIE and L2. Default: SIE.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_cost_function(
+    ctx: *mut sie_context,
+    cost: u32,
+    parameter: f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.cost = match sie_cost_function::decode(cost, "cost")? {
+                sie_cost_function::Sie => CostFunction::Sie,
+                sie_cost_function::L2 => CostFunction::L2,
+                sie_cost_function::TruncatedL2 => CostFunction::TruncatedL2 { threshold: parameter },
+                sie_cost_function::Lp => CostFunction::Lp { p: parameter },
+                sie_cost_function::StudentT => CostFunction::StudentT {
+                    dof: if parameter == 0.0 {
+                        DEFAULT_STUDENT_T_DOF
+                    } else {
+                        parameter
+                    },
+                },
+                sie_cost_function::Huber => CostFunction::Huber { scale: parameter },
+                sie_cost_function::Cauchy => CostFunction::Cauchy { scale: parameter },
+                sie_cost_function::GemanMcclure => CostFunction::GemanMcClure { scale: parameter },
+                sie_cost_function::Tukey => CostFunction::Tukey { scale: parameter },
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Selects the residual of cloud registration (a `sie_metric`). Correspondence registration
+/// always uses point-to-point. Default: POINT_TO_PLANE.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_metric(ctx: *mut sie_context, metric: u32) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.metric = match sie_metric::decode(metric, "metric")? {
+                sie_metric::PointToPoint => Metric::PointToPoint,
+                sie_metric::PointToPlane => Metric::PointToPlane,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Caps the number of updates (>= 1). Default: 200.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_max_iterations(
+    ctx: *mut sie_context,
+    max_iterations: u32,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.max_iterations = max_iterations;
+            Ok(())
+        })
+    }
+}
+
+/// Converged when an update moves the translation by less than `translation` (input units) and
+/// rotates by less than `rotation_radians`; both finite and >= 0. Default: 1e-6 and 1e-6.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_convergence(
+    ctx: *mut sie_context,
+    translation: f64,
+    rotation_radians: f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.translation_tolerance = translation;
+            config.rotation_tolerance = rotation_radians;
+            Ok(())
+        })
+    }
+}
+
+/// Selects the built-in per-point noise model (a `sie_noise_model`); a noise callback, when
+/// set, takes precedence. Default: CONSTANT.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_noise_model(ctx: *mut sie_context, model: u32) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.noise = match sie_noise_model::decode(model, "model")? {
+                sie_noise_model::Constant => NoiseModel::Constant,
+                sie_noise_model::QuadraticDepth => NoiseModel::QuadraticDepth,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Sets the per-point noise callback (see `sie_noise_fn`) and the `user_data` passed back to it;
+/// the library never dereferences or frees `user_data`. A NULL `noise_fn` removes the callback,
+/// and the built-in noise model applies again. Default: none.
+///
+/// # Safety
+/// `ctx` is NULL or a live context. `noise_fn` must be safe to call with `user_data` for as long
+/// as it is set.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_noise_callback(
+    ctx: *mut sie_context,
+    noise_fn: sie_noise_fn,
+    user_data: *mut c_void,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |context| {
+        context.state_mut()?.noise_callback = noise_fn.map(|function| NoiseCallback { function, user_data });
+        Ok(())
+    })
+}
+
+/// Sets the shape exponent p of the inlier noise model: p > 0 is fixed (in [0.1, 10]; 2 =
+/// Gaussian, 1 = Laplacian), p = 0 estimates it from the data. Default: 2.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_noise_shape(ctx: *mut sie_context, p: f64) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.sie.shape = if p == 0.0 {
+                NoiseShape::Estimated
+            } else {
+                NoiseShape::Fixed(p)
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Selects which residuals share an SIE histogram (a `sie_histogram_mode`). Default: POOLED.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_histogram_mode(ctx: *mut sie_context, mode: u32) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.sie.histogram = match sie_histogram_mode::decode(mode, "mode")? {
+                sie_histogram_mode::Pooled => HistogramMode::Pooled,
+                sie_histogram_mode::PerColumn => HistogramMode::PerColumn,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Sets the SIE regulariser annealing: `initial_beta` is the starting beta in normalised residual
+/// units (finite and >= 0; 0 = automatic, the RMS of the initial residuals), `shrink` the factor
+/// beta is multiplied by after each convergence, in (0, 1). Default: automatic and 0.5.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_regularizer(
+    ctx: *mut sie_context,
+    initial_beta: f64,
+    shrink: f64,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.initial_beta = if initial_beta == 0.0 {
+                None
+            } else {
+                Some(initial_beta)
+            };
+            config.beta_shrink = shrink;
+            Ok(())
+        })
+    }
+}
+
+/// Cloud registration uses at most this many randomly chosen source points per iteration
+/// (0 = all). Default: 0.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_max_correspondences(
+    ctx: *mut sie_context,
+    max_correspondences: usize,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.max_correspondences = max_correspondences;
+            Ok(())
+        })
+    }
+}
+
+/// Neighbours used to estimate target normals for point-to-plane when none are given
+/// (3..=1000). Default: 10.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_normal_neighbours(
+    ctx: *mut sie_context,
+    neighbours: u32,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.normal_neighbours = usize::try_from(neighbours).unwrap_or(usize::MAX);
+            Ok(())
+        })
+    }
+}
+
+/// Worker threads for matching and normals (0 = all cores, 1 = the calling thread only;
+/// at most 1024). Default: 0.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_threads(ctx: *mut sie_context, threads: u32) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.threads = usize::try_from(threads).unwrap_or(usize::MAX);
+            Ok(())
+        })
+    }
+}
+
+/// Seed of the correspondence sampling; equal seeds give equal results. Default: 0x5EED.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_seed(ctx: *mut sie_context, seed: u64) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.seed = seed;
+            Ok(())
+        })
+    }
+}
+
+/// Records one `sie_trace_entry` per iteration for `sie_context_get_trace`. Default: false.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_trace(ctx: *mut sie_context, enabled: bool) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.record_trace = enabled;
+            Ok(())
+        })
+    }
+}
