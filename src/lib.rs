@@ -8,6 +8,8 @@
 pub mod cost;
 pub mod ffi;
 pub mod geometry;
+#[cfg(feature = "io")]
+pub mod io;
 pub mod nn;
 pub mod noise;
 pub mod normals;

@@ -1,0 +1,906 @@
+//! Point-cloud and transform files for the CLI and the data-driven tests (feature `io`).
+//!
+//! Readers: PCD via `pcd-rs` (ascii, binary, binary_compressed; VERSION 0.5–0.7), PLY via
+//! `ply-rs` (ascii, binary little/big endian), and plain XYZ text. Every error is one line
+//! naming the file; malformed input is an error, never a panic (the two crates panic or
+//! allocate without bound on a few malformed headers, which are checked here first).
+use std::fmt::Display;
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+use nalgebra::Matrix4;
+use pcd_rs::{DynReader, DynRecord, Field};
+use ply_rs::parser::Parser;
+use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
+
+use crate::registration::Point;
+
+/// A cloud read from a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CloudFile {
+    pub points: Vec<Point>,
+    /// From `normal_x/normal_y/normal_z` or `nx/ny/nz` fields when the file has them; a
+    /// non-finite normal becomes `[0, 0, 0]` ("no normal", as `estimate_normals` gives).
+    pub normals: Option<Vec<Point>>,
+    /// Points dropped for a non-finite coordinate (only with [`NonFinite::Skip`]).
+    pub skipped_non_finite: usize,
+}
+
+/// What to do with points that have a NaN or infinite coordinate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NonFinite {
+    /// Fail, naming the first such point.
+    Reject,
+    /// Drop them (PCL clouds with `is_dense = false` mark invalid points with NaN) and count
+    /// them in [`CloudFile::skipped_non_finite`].
+    Skip,
+}
+
+/// Reads a `.pcd`, `.ply`, `.xyz` or `.txt` cloud; non-finite coordinates are an error.
+pub fn read_cloud(path: &Path) -> Result<CloudFile, String> {
+    read_cloud_with(path, NonFinite::Reject)
+}
+
+/// Reads a cloud, choosing the format by extension (case-insensitive).
+///
+/// XYZ text: one point per line, the first three numbers separated by whitespace and/or
+/// commas (further columns ignored), `#` starts a comment; a first line without any number
+/// (a column header) is skipped.
+pub fn read_cloud_with(path: &Path, non_finite: NonFinite) -> Result<CloudFile, String> {
+    let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let parse: ParseFn = match extension.as_str() {
+        "pcd" => parse_pcd,
+        "ply" => parse_ply,
+        "xyz" | "txt" => parse_xyz,
+        _ => {
+            return Err(fail(&format_args!(
+                "unknown point-cloud extension {extension:?} (expected .pcd, .ply, .xyz or .txt)"
+            )));
+        }
+    };
+    let bytes = fs::read(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
+    let raw = parse(&bytes).map_err(|e| fail(&e))?;
+    raw.finish(non_finite).map_err(|e| fail(&e))
+}
+
+/// Reads a rigid transform: 16 numbers (4×4, row-major) or 12 (the top 3×4 rows), separated
+/// by whitespace and/or commas, `#` comments allowed. A 4×4 must end in the row 0 0 0 1.
+pub fn read_transform(path: &Path) -> Result<Matrix4<f64>, String> {
+    let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
+    let text = fs::read_to_string(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
+    parse_transform(&text).map_err(|e| fail(&e))
+}
+
+/// Writes one `x y z` line per point (shortest text that reads back to the same f64).
+pub fn write_cloud_xyz(path: &Path, points: &[Point]) -> Result<(), String> {
+    write_text(path, |out| {
+        for p in points {
+            writeln!(out, "{} {} {}", p[0], p[1], p[2])?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes an ascii PCD v0.7 with double-precision `x y z` and, when given, `normal_x/y/z`.
+pub fn write_cloud_pcd_ascii(path: &Path, points: &[Point], normals: Option<&[Point]>) -> Result<(), String> {
+    if let Some(normals) = normals.filter(|n| n.len() != points.len()) {
+        return Err(format!(
+            "{}: {} normals for {} points",
+            path.display(),
+            normals.len(),
+            points.len()
+        ));
+    }
+    write_text(path, |out| {
+        let (fields, per_point) = match normals {
+            Some(_) => ("x y z normal_x normal_y normal_z", 6),
+            None => ("x y z", 3),
+        };
+        writeln!(out, "# .PCD v0.7 - Point Cloud Data file format")?;
+        writeln!(out, "VERSION 0.7")?;
+        writeln!(out, "FIELDS {fields}")?;
+        writeln!(out, "SIZE{}", " 8".repeat(per_point))?;
+        writeln!(out, "TYPE{}", " F".repeat(per_point))?;
+        writeln!(out, "COUNT{}", " 1".repeat(per_point))?;
+        writeln!(out, "WIDTH {}", points.len())?;
+        writeln!(out, "HEIGHT 1")?;
+        writeln!(out, "VIEWPOINT 0 0 0 1 0 0 0")?;
+        writeln!(out, "POINTS {}", points.len())?;
+        writeln!(out, "DATA ascii")?;
+        for (i, p) in points.iter().enumerate() {
+            write!(out, "{} {} {}", p[0], p[1], p[2])?;
+            if let Some(n) = normals.map(|n| n[i]) {
+                write!(out, " {} {} {}", n[0], n[1], n[2])?;
+            }
+            writeln!(out)?;
+        }
+        Ok(())
+    })
+}
+
+fn write_text(
+    path: &Path,
+    body: impl FnOnce(&mut BufWriter<fs::File>) -> std::io::Result<()>,
+) -> Result<(), String> {
+    let result = fs::File::create(path).and_then(|file| {
+        let mut out = BufWriter::new(file);
+        body(&mut out)?;
+        out.flush()
+    });
+    result.map_err(|e| format!("{}: cannot write file: {e}", path.display()))
+}
+
+/// Library messages (ply-rs in particular) span lines; callers expect one.
+fn one_line(message: &dyn Display) -> String {
+    message
+        .to_string()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+type ParseFn = fn(&[u8]) -> Result<RawCloud, String>;
+
+/// Points and optional normals as parsed, before the non-finite policy.
+struct RawCloud {
+    points: Vec<Point>,
+    normals: Option<Vec<Point>>,
+}
+
+impl RawCloud {
+    fn finish(self, non_finite: NonFinite) -> Result<CloudFile, String> {
+        let RawCloud {
+            mut points,
+            mut normals,
+        } = self;
+        if points.is_empty() {
+            return Err("the cloud has no points".into());
+        }
+        let is_finite = |p: &Point| p.iter().all(|c| c.is_finite());
+        if let Some(normals) = normals.as_mut() {
+            for n in normals.iter_mut().filter(|n| !is_finite(n)) {
+                *n = [0.0; 3];
+            }
+        }
+        let total = points.len();
+        let Some(first_bad) = points.iter().position(|p| !is_finite(p)) else {
+            return Ok(CloudFile {
+                points,
+                normals,
+                skipped_non_finite: 0,
+            });
+        };
+        if non_finite == NonFinite::Reject {
+            let p = points[first_bad];
+            return Err(format!(
+                "point {first_bad} has a non-finite coordinate ({}, {}, {}); \
+                 invalid points can be skipped instead (NonFinite::Skip)",
+                p[0], p[1], p[2]
+            ));
+        }
+        let keep: Vec<bool> = points.iter().map(is_finite).collect();
+        let kept = |values: Vec<Point>| -> Vec<Point> {
+            values
+                .into_iter()
+                .zip(&keep)
+                .filter_map(|(v, &k)| k.then_some(v))
+                .collect()
+        };
+        normals = normals.map(kept);
+        points = kept(points);
+        if points.is_empty() {
+            return Err(format!("all {total} points have a non-finite coordinate"));
+        }
+        Ok(CloudFile {
+            skipped_non_finite: total - points.len(),
+            points,
+            normals,
+        })
+    }
+}
+
+/// Names under which a cloud's normal components appear.
+const NORMAL_FIELD_NAMES: [[&str; 3]; 2] = [["normal_x", "normal_y", "normal_z"], ["nx", "ny", "nz"]];
+
+// ----------------------------------------------------------------------------------------------
+// PCD
+
+/// Largest accepted record (one point); far above any real layout, small enough that pcd-rs's
+/// per-record buffers cannot exhaust memory.
+const PCD_MAX_RECORD_BYTES: u64 = 1 << 20;
+
+/// LZF emits at least 2 bytes per 264 output bytes; more claimed output means corruption.
+const LZF_MAX_EXPANSION: u64 = 132;
+
+fn parse_pcd(bytes: &[u8]) -> Result<RawCloud, String> {
+    check_pcd_layout(bytes)?;
+    let reader = DynReader::from_bytes(bytes).map_err(|e| format!("PCD header: {e}"))?;
+    let meta = reader.meta();
+    // pcd-rs drops `_` padding fields from records.
+    let names: Vec<&str> = meta
+        .field_defs
+        .iter()
+        .filter(|f| f.name != "_")
+        .map(|f| f.name.as_str())
+        .collect();
+    let find = |wanted: [&str; 3]| -> Option<[usize; 3]> {
+        let [x, y, z] = wanted.map(|name| names.iter().position(|&n| n == name));
+        Some([x?, y?, z?])
+    };
+    let position_fields = find(["x", "y", "z"])
+        .ok_or_else(|| format!("PCD has no x, y, z fields (fields: {})", names.join(" ")))?;
+    let normal_fields = NORMAL_FIELD_NAMES.into_iter().find_map(find);
+    let declared = usize::try_from(meta.num_points).unwrap_or(usize::MAX);
+    let capacity = declared.min(bytes.len() / 3);
+    let mut points = Vec::with_capacity(capacity);
+    let mut normals = normal_fields.map(|_| Vec::with_capacity(capacity));
+    for (i, record) in reader.enumerate() {
+        let record = record.map_err(|e| format!("PCD point {i} of {declared}: {e}"))?;
+        let field = |at: [usize; 3]| at.map(|f| pcd_value(&record, f));
+        points.push(field(position_fields));
+        if let (Some(normals), Some(at)) = (normals.as_mut(), normal_fields) {
+            normals.push(field(at));
+        }
+    }
+    Ok(RawCloud { points, normals })
+}
+
+/// First value of field `index` as f64 (NaN if absent, so the non-finite policy applies).
+fn pcd_value(record: &DynRecord, index: usize) -> f64 {
+    let first = match record.0.get(index) {
+        Some(Field::F32(v)) => v.first().map(|&x| x as f64),
+        Some(Field::F64(v)) => v.first().copied(),
+        Some(Field::I8(v)) => v.first().map(|&x| x as f64),
+        Some(Field::I16(v)) => v.first().map(|&x| x as f64),
+        Some(Field::I32(v)) => v.first().map(|&x| x as f64),
+        Some(Field::I64(v)) => v.first().map(|&x| x as f64),
+        Some(Field::U8(v)) => v.first().map(|&x| x as f64),
+        Some(Field::U16(v)) => v.first().map(|&x| x as f64),
+        Some(Field::U32(v)) => v.first().map(|&x| x as f64),
+        Some(Field::U64(v)) => v.first().map(|&x| x as f64),
+        None => None,
+    };
+    first.unwrap_or(f64::NAN)
+}
+
+/// Rejects the header sizes on which pcd-rs 0.13 would panic or allocate unboundedly: record
+/// sizes that overflow, and binary_compressed blocks whose sizes disagree with the header
+/// (its column transposition indexes out of bounds). Anything else is left to pcd-rs.
+fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
+    let mut sizes: Option<Vec<u64>> = None;
+    let mut counts: Option<Vec<u64>> = None;
+    let mut declared_points: Option<u64> = None;
+    let mut rest = bytes;
+    let data_kind = loop {
+        let Some(line_end) = rest.iter().position(|&b| b == b'\n') else {
+            return Ok(());
+        };
+        let line = String::from_utf8_lossy(&rest[..line_end]);
+        rest = &rest[line_end + 1..];
+        let content = line.split('#').next().unwrap_or("");
+        let tokens: Vec<&str> = content.split_ascii_whitespace().collect();
+        let Some((key, values)) = tokens.split_first() else {
+            continue;
+        };
+        let numbers = || {
+            values
+                .iter()
+                .map(|v| v.parse::<u64>())
+                .collect::<Result<Vec<_>, _>>()
+                .ok()
+        };
+        match key.to_ascii_uppercase().as_str() {
+            "SIZE" => sizes = numbers(),
+            "COUNT" => counts = numbers(),
+            "POINTS" => declared_points = numbers().and_then(|v| v.first().copied()),
+            "DATA" => break values.first().unwrap_or(&"").to_string(),
+            _ => {}
+        }
+    };
+    let (Some(sizes), Some(points)) = (sizes, declared_points) else {
+        return Ok(());
+    };
+    let counts = counts.unwrap_or_else(|| vec![1; sizes.len()]);
+    if counts.len() != sizes.len() {
+        return Ok(()); // pcd-rs reports the mismatch
+    }
+    let record_bytes = sizes
+        .iter()
+        .zip(&counts)
+        .try_fold(0u64, |sum, (&size, &count)| {
+            sum.checked_add(size.checked_mul(count.max(1))?)
+        })
+        .filter(|&b| b <= PCD_MAX_RECORD_BYTES)
+        .ok_or("PCD header: SIZE × COUNT gives an implausibly large point record")?;
+    if data_kind != "binary_compressed" || rest.len() < 8 {
+        return Ok(());
+    }
+    let compressed = u32::from_le_bytes([rest[0], rest[1], rest[2], rest[3]]) as u64;
+    let uncompressed = u32::from_le_bytes([rest[4], rest[5], rest[6], rest[7]]) as u64;
+    let present = (rest.len() - 8) as u64;
+    if compressed > present {
+        return Err(format!(
+            "PCD binary_compressed data truncated: {compressed} compressed bytes declared, {present} present"
+        ));
+    }
+    if compressed == 0 && uncompressed == 0 {
+        return Ok(());
+    }
+    let expected = points.checked_mul(record_bytes);
+    if expected != Some(uncompressed) {
+        return Err(format!(
+            "PCD binary_compressed block holds {uncompressed} bytes but POINTS {points} × {record_bytes}-byte \
+             records need {}",
+            expected.map_or("more than 2^64".to_string(), |e| e.to_string())
+        ));
+    }
+    if uncompressed > compressed.saturating_mul(LZF_MAX_EXPANSION) + 1024 {
+        return Err(format!(
+            "PCD binary_compressed block is corrupt: {compressed} bytes cannot expand to {uncompressed}"
+        ));
+    }
+    Ok(())
+}
+
+// ----------------------------------------------------------------------------------------------
+// PLY
+
+/// One vertex as ply-rs reports it; other properties are ignored as they arrive.
+struct PlyVertex {
+    position: Point,
+    normal: Point,
+}
+
+impl PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        PlyVertex {
+            position: [f64::NAN; 3],
+            normal: [f64::NAN; 3],
+        }
+    }
+
+    fn set_property(&mut self, name: String, property: Property) {
+        let Some(value) = ply_scalar(&property) else {
+            return;
+        };
+        let slot = match name.as_str() {
+            "x" => &mut self.position[0],
+            "y" => &mut self.position[1],
+            "z" => &mut self.position[2],
+            "nx" | "normal_x" => &mut self.normal[0],
+            "ny" | "normal_y" => &mut self.normal[1],
+            "nz" | "normal_z" => &mut self.normal[2],
+            _ => return,
+        };
+        *slot = value;
+    }
+}
+
+fn ply_scalar(property: &Property) -> Option<f64> {
+    Some(match *property {
+        Property::Char(v) => v as f64,
+        Property::UChar(v) => v as f64,
+        Property::Short(v) => v as f64,
+        Property::UShort(v) => v as f64,
+        Property::Int(v) => v as f64,
+        Property::UInt(v) => v as f64,
+        Property::Float(v) => v as f64,
+        Property::Double(v) => v,
+        _ => return None,
+    })
+}
+
+fn ply_scalar_bytes(scalar: &ScalarType) -> usize {
+    match scalar {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// Reads the `vertex` element (elements before it are read and discarded; those after it,
+/// such as faces or the Stanford scans' `range_grid`, are not read at all).
+fn parse_ply(bytes: &[u8]) -> Result<RawCloud, String> {
+    check_ply_header_numbers(bytes)?;
+    let mut reader: &[u8] = bytes;
+    let parser = Parser::<PlyVertex>::new();
+    let header = parser
+        .read_header(&mut reader)
+        .map_err(|e| format!("PLY header: {e}"))?;
+    let vertex = header.elements.get("vertex").ok_or("PLY has no vertex element")?;
+    let has = |name: &str| {
+        matches!(
+            vertex.properties.get(name).map(|p| &p.data_type),
+            Some(PropertyType::Scalar(_))
+        )
+    };
+    if !["x", "y", "z"].iter().all(|n| has(n)) {
+        let names: Vec<&str> = vertex.properties.keys().map(String::as_str).collect();
+        return Err(format!(
+            "PLY vertex has no scalar x, y, z properties (properties: {})",
+            names.join(" ")
+        ));
+    }
+    let with_normals = NORMAL_FIELD_NAMES
+        .iter()
+        .any(|names| names.iter().all(|n| has(n)));
+    for (name, element) in &header.elements {
+        check_ply_element_fits(element, &header.encoding, reader.len())?;
+        let read = parser
+            .read_payload_for_element(&mut reader, element, &header)
+            .map_err(|e| format!("PLY element {name:?}: {e}"))?;
+        if name == "vertex" {
+            let points = read.iter().map(|v| v.position).collect();
+            let normals = with_normals.then(|| read.iter().map(|v| v.normal).collect());
+            return Ok(RawCloud { points, normals });
+        }
+    }
+    Err("PLY has no vertex element".into())
+}
+
+/// ply-rs 0.1 unwraps its header integers into u64 and would panic on longer digit runs.
+fn check_ply_header_numbers(bytes: &[u8]) -> Result<(), String> {
+    for line in bytes.split(|&b| b == b'\n') {
+        let longest_digit_run = line
+            .split(|b| !b.is_ascii_digit())
+            .map(<[u8]>::len)
+            .max()
+            .unwrap_or(0);
+        if longest_digit_run > 19 {
+            return Err(format!(
+                "PLY header has a number too large: {}",
+                String::from_utf8_lossy(line).trim()
+            ));
+        }
+        if line.starts_with(b"end_header") {
+            break;
+        }
+    }
+    Ok(())
+}
+
+/// Catches truncated files (and element counts that would loop or allocate far beyond the
+/// file) before reading: every entry takes at least one byte per property in ascii and the
+/// sum of its scalar sizes in binary.
+fn check_ply_element_fits(element: &ElementDef, encoding: &Encoding, remaining: usize) -> Result<(), String> {
+    if element.count == 0 {
+        return Ok(());
+    }
+    if element.properties.is_empty() {
+        return Err(format!(
+            "PLY element {:?} has entries but no properties",
+            element.name
+        ));
+    }
+    let entry_bytes = match encoding {
+        Encoding::Ascii => element.properties.len(),
+        _ => element
+            .properties
+            .values()
+            .map(|p| match &p.data_type {
+                PropertyType::Scalar(s) | PropertyType::List(s, _) => ply_scalar_bytes(s),
+            })
+            .sum(),
+    };
+    if element.count.saturating_mul(entry_bytes) > remaining {
+        return Err(format!(
+            "PLY file truncated: element {:?} declares {} entries, only {remaining} bytes follow",
+            element.name, element.count
+        ));
+    }
+    Ok(())
+}
+
+// ----------------------------------------------------------------------------------------------
+// XYZ text and transforms
+
+/// Tokens of one text line: `#` comment removed, separated by whitespace and/or commas.
+fn text_tokens(line: &str) -> impl Iterator<Item = &str> {
+    let content = line.split('#').next().unwrap_or("");
+    content
+        .split(|c: char| c.is_whitespace() || c == ',')
+        .filter(|t| !t.is_empty())
+}
+
+fn parse_xyz(bytes: &[u8]) -> Result<RawCloud, String> {
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        let line = bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count() + 1;
+        format!("line {line}: not UTF-8 text")
+    })?;
+    let mut points = Vec::new();
+    let mut seen_data_line = false;
+    for (line_index, line) in text.lines().enumerate() {
+        let tokens: Vec<&str> = text_tokens(line).take(3).collect();
+        if tokens.is_empty() {
+            continue;
+        }
+        let numbers: Vec<f64> = tokens.iter().filter_map(|t| t.parse().ok()).collect();
+        if !seen_data_line && numbers.is_empty() {
+            seen_data_line = true; // a column header such as "x y z"
+            continue;
+        }
+        seen_data_line = true;
+        if numbers.len() < 3 {
+            let shown: String = line.trim().chars().take(60).collect();
+            return Err(format!(
+                "line {}: expected 3 numbers, found {shown:?}",
+                line_index + 1
+            ));
+        }
+        points.push([numbers[0], numbers[1], numbers[2]]);
+    }
+    Ok(RawCloud {
+        points,
+        normals: None,
+    })
+}
+
+fn parse_transform(text: &str) -> Result<Matrix4<f64>, String> {
+    let mut values = Vec::with_capacity(16);
+    for token in text.lines().flat_map(text_tokens) {
+        let value: f64 = token.parse().map_err(|_| format!("{token:?} is not a number"))?;
+        if !value.is_finite() {
+            return Err(format!("non-finite entry {token:?}"));
+        }
+        values.push(value);
+    }
+    match values.len() {
+        12 => values.extend([0.0, 0.0, 0.0, 1.0]),
+        16 => {}
+        n => return Err(format!("expected 16 numbers (4×4) or 12 (3×4), found {n}")),
+    }
+    let matrix = Matrix4::from_row_slice(&values);
+    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
+    if last_row != [0.0, 0.0, 0.0, 1.0] {
+        return Err(format!(
+            "the last row must be 0 0 0 1 for a rigid transform, found {last_row:?}"
+        ));
+    }
+    Ok(matrix)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::rngs::Xoshiro256PlusPlus;
+    use rand::{RngExt, SeedableRng};
+    use std::path::PathBuf;
+
+    /// A file path unique to this process and test.
+    fn temp_path(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("sie-io-test-{}-{name}", std::process::id()))
+    }
+
+    fn write_temp(name: &str, bytes: &[u8]) -> PathBuf {
+        let path = temp_path(name);
+        fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    const PCD_ASCII: &str = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z normal_x normal_y normal_z curvature\n\
+        SIZE 4 4 4 4 4 4 4\nTYPE F F F F F F F\nCOUNT 1 1 1 1 1 1 1\nWIDTH 3\nHEIGHT 1\n\
+        VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n\
+        1 2 3 0 0 1 0.1\n4 5 6 0 1 0 0.2\n7 8 9 nan nan nan 0.3\n";
+
+    /// Binary PCD with a padding field and a double-precision z.
+    fn pcd_binary(points: &[Point]) -> Vec<u8> {
+        let mut bytes = format!(
+            "VERSION .7\nFIELDS x _ y z\nSIZE 4 1 4 8\nTYPE F U F F\nCOUNT 1 3 1 1\nWIDTH {n}\nHEIGHT 1\n\
+             POINTS {n}\nDATA binary\n",
+            n = points.len()
+        )
+        .into_bytes();
+        for p in points {
+            bytes.extend((p[0] as f32).to_le_bytes());
+            bytes.extend([7, 7, 7]);
+            bytes.extend((p[1] as f32).to_le_bytes());
+            bytes.extend(p[2].to_le_bytes());
+        }
+        bytes
+    }
+
+    /// binary_compressed with a literal-only LZF stream (valid LZF, no back references).
+    fn pcd_compressed(points: &[Point]) -> Vec<u8> {
+        let mut columns = Vec::new();
+        for d in 0..3 {
+            for p in points {
+                columns.extend((p[d] as f32).to_le_bytes());
+            }
+        }
+        let mut lzf = Vec::new();
+        for run in columns.chunks(32) {
+            lzf.push((run.len() - 1) as u8);
+            lzf.extend(run);
+        }
+        let mut bytes = format!(
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\n\
+             POINTS {n}\nDATA binary_compressed\n",
+            n = points.len()
+        )
+        .into_bytes();
+        bytes.extend((lzf.len() as u32).to_le_bytes());
+        bytes.extend((columns.len() as u32).to_le_bytes());
+        bytes.extend(lzf);
+        bytes
+    }
+
+    fn ply_binary(points: &[Point]) -> Vec<u8> {
+        let mut bytes = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment test\nelement vertex {}\nproperty float x\n\
+             property float y\nproperty double z\nproperty uchar intensity\nelement face 1\n\
+             property list uchar int vertex_indices\nend_header\n",
+            points.len()
+        )
+        .into_bytes();
+        for p in points {
+            bytes.extend((p[0] as f32).to_le_bytes());
+            bytes.extend((p[1] as f32).to_le_bytes());
+            bytes.extend(p[2].to_le_bytes());
+            bytes.push(200);
+        }
+        bytes.push(3);
+        for i in 0..3i32 {
+            bytes.extend(i.to_le_bytes());
+        }
+        bytes
+    }
+
+    const PLY_ASCII: &str = "ply\nformat ascii 1.0\nelement camera 1\nproperty float f\n\
+        element vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\n\
+        property float ny\nproperty float nz\nelement range_grid 3\nproperty list uchar int vertex_indices\n\
+        end_header\n0.5\n1 2 3 0 0 1\n-1 -2 -3.5 1 0 0\n1 0\n0\n1 1\n";
+
+    const SAMPLE: [Point; 3] = [[1.0, 2.0, 3.0], [-4.5, 0.25, 6.0], [7.0, -8.0, 0.125]];
+
+    #[test]
+    fn reads_pcd_ascii_with_normals_and_nan() {
+        let cloud = parse_pcd(PCD_ASCII.as_bytes())
+            .and_then(|r| r.finish(NonFinite::Reject))
+            .unwrap();
+        assert_eq!(
+            cloud.points,
+            vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+        );
+        // The NaN normal becomes "no normal".
+        assert_eq!(
+            cloud.normals.unwrap(),
+            vec![[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0; 3]]
+        );
+    }
+
+    #[test]
+    fn reads_pcd_binary_and_compressed() {
+        let cloud = parse_pcd(&pcd_binary(&SAMPLE))
+            .unwrap()
+            .finish(NonFinite::Reject)
+            .unwrap();
+        assert_eq!(cloud.points, SAMPLE.to_vec());
+        assert_eq!(cloud.normals, None);
+        let cloud = parse_pcd(&pcd_compressed(&SAMPLE))
+            .unwrap()
+            .finish(NonFinite::Reject)
+            .unwrap();
+        assert_eq!(cloud.points, SAMPLE.to_vec());
+    }
+
+    #[test]
+    fn reads_ply_binary_and_ascii() {
+        let cloud = parse_ply(&ply_binary(&SAMPLE))
+            .unwrap()
+            .finish(NonFinite::Reject)
+            .unwrap();
+        assert_eq!(cloud.points, SAMPLE.to_vec());
+        assert_eq!(cloud.normals, None);
+        let cloud = parse_ply(PLY_ASCII.as_bytes())
+            .unwrap()
+            .finish(NonFinite::Reject)
+            .unwrap();
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [-1.0, -2.0, -3.5]]);
+        assert_eq!(cloud.normals.unwrap(), vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]);
+    }
+
+    #[test]
+    fn reads_xyz_text() {
+        let text = "# exported\nX,Y,Z\n1, 2, 3, 99\n\n  4\t5 6 # note\n7,8,9\n";
+        let cloud = parse_xyz(text.as_bytes())
+            .unwrap()
+            .finish(NonFinite::Reject)
+            .unwrap();
+        assert_eq!(
+            cloud.points,
+            vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+        );
+        let err = parse_xyz(b"1 2 3\n4 5\n").err().unwrap();
+        assert!(err.contains("line 2"), "{err}");
+        let err = parse_xyz(b"1 2 3\nx y z\n").err().unwrap();
+        assert!(err.contains("line 2"), "{err}");
+    }
+
+    #[test]
+    fn non_finite_points_are_rejected_or_skipped() {
+        let text = "1 2 3\n4 nan 6\n7 8 9\ninf 0 0\n";
+        let path = write_temp("nonfinite.xyz", text.as_bytes());
+        let err = read_cloud(&path).err().unwrap();
+        assert!(err.contains("point 1 ") && err.contains("nonfinite.xyz"), "{err}");
+        let cloud = read_cloud_with(&path, NonFinite::Skip).unwrap();
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [7.0, 8.0, 9.0]]);
+        assert_eq!(cloud.skipped_non_finite, 2);
+        fs::write(&path, "nan 0 0\n").unwrap();
+        let err = read_cloud_with(&path, NonFinite::Skip).err().unwrap();
+        assert!(err.contains("all 1 points"), "{err}");
+        fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn skip_keeps_normals_aligned() {
+        let pcd = PCD_ASCII.replace("4 5 6 0 1 0", "4 nan 6 0 1 0");
+        let cloud = parse_pcd(pcd.as_bytes())
+            .unwrap()
+            .finish(NonFinite::Skip)
+            .unwrap();
+        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [7.0, 8.0, 9.0]]);
+        assert_eq!(cloud.normals.unwrap(), vec![[0.0, 0.0, 1.0], [0.0; 3]]);
+    }
+
+    #[test]
+    fn errors_name_the_file_on_one_line() {
+        let missing = temp_path("missing.pcd");
+        let err = read_cloud(&missing).err().unwrap();
+        assert!(
+            err.starts_with(&missing.display().to_string()) && err.contains("cannot read"),
+            "{err}"
+        );
+        let err = read_cloud(Path::new("cloud.obj")).err().unwrap();
+        assert!(
+            err.starts_with("cloud.obj:") && err.contains("unknown point-cloud extension"),
+            "{err}"
+        );
+        let cases: [(&str, &[u8], &str); 6] = [
+            ("empty.xyz", b"# nothing\n", "no points"),
+            ("noxyz.pcd", b"VERSION 0.7\nFIELDS a b\nSIZE 4 4\nTYPE F F\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2\n", "no x, y, z"),
+            ("fields.pcd", b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nHEIGHT 1\nPOINTS 2\nDATA ascii\n1 2 3\n1 2\n", "point 1"),
+            ("noxyz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float u\nend_header\n1\n", "no scalar x, y, z"),
+            ("garbage.ply", b"\x00\x01garbage\n", "PLY header"),
+            ("truncated.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0", "truncated"),
+        ];
+        for (name, bytes, expected) in cases {
+            let path = write_temp(name, bytes);
+            let err = read_cloud(&path)
+                .err()
+                .unwrap_or_else(|| panic!("{name} was accepted"));
+            assert!(err.contains(name) && err.contains(expected), "{name}: {err}");
+            assert!(!err.contains('\n'), "{name}: multi-line error {err:?}");
+            fs::remove_file(&path).unwrap();
+        }
+    }
+
+    #[test]
+    fn compressed_block_sizes_are_checked() {
+        let good = pcd_compressed(&SAMPLE);
+        let header_end = good
+            .windows(18)
+            .position(|w| w == b"binary_compressed\n")
+            .unwrap()
+            + 18;
+        let mut wrong_size = good.clone();
+        wrong_size[header_end + 4..header_end + 8].copy_from_slice(&8u32.to_le_bytes());
+        let err = parse_pcd(&wrong_size).err().unwrap();
+        assert!(err.contains("need 36"), "{err}");
+        let mut too_many_points = good.clone();
+        let text = String::from_utf8_lossy(&good[..header_end]).replace("POINTS 3", "POINTS 3000000000");
+        too_many_points.splice(..header_end, text.into_bytes());
+        assert!(parse_pcd(&too_many_points).is_err());
+    }
+
+    /// Every truncation and many random corruptions of valid files give Ok or Err, not a panic.
+    #[test]
+    fn malformed_input_never_panics() {
+        let samples: Vec<(ParseFn, Vec<u8>)> = vec![
+            (parse_pcd, PCD_ASCII.as_bytes().to_vec()),
+            (parse_pcd, pcd_binary(&SAMPLE)),
+            (parse_pcd, pcd_compressed(&SAMPLE)),
+            (parse_ply, ply_binary(&SAMPLE)),
+            (parse_ply, PLY_ASCII.as_bytes().to_vec()),
+            (parse_xyz, b"1 2 3\n4,5,6\n".to_vec()),
+        ];
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let replacements = [b'0', b'9', b'\n', b' ', b'-', 0, 0xff, b'x', b'.', b'_'];
+        for (parse, bytes) in &samples {
+            for len in 0..bytes.len() {
+                let _ = parse(&bytes[..len]);
+            }
+            for _ in 0..3000 {
+                let mut corrupt = bytes.clone();
+                for _ in 0..rng.random_range(1..4) {
+                    let at = rng.random_range(0..corrupt.len());
+                    corrupt[at] = replacements[rng.random_range(0..replacements.len())];
+                }
+                let _ = parse(&corrupt);
+            }
+            // Whole-header number blow-ups.
+            let text = String::from_utf8_lossy(bytes).to_string();
+            for (from, to) in [
+                ("3", "99999999999999999999999"),
+                ("1", "18446744073709551615"),
+                ("4", "0"),
+            ] {
+                let _ = parse(text.replacen(from, to, 1).as_bytes());
+            }
+        }
+        assert!(
+            parse_ply(b"ply\nformat ascii 1.0\nelement vertex 99999999999999999999999\nend_header\n")
+                .is_err()
+        );
+        assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 1000000000000\nend_header\n").is_err());
+    }
+
+    #[test]
+    fn transform_files() {
+        let m = parse_transform("# T\n1 0 0 0.5\n0 1 0 -1\n0 0 1 2\n0 0 0 1\n").unwrap();
+        assert_eq!(m[(0, 3)], 0.5);
+        assert_eq!(m[(1, 3)], -1.0);
+        let m34 = parse_transform("1,0,0,0.5, 0,1,0,-1, 0,0,1,2").unwrap();
+        assert_eq!(m, m34);
+        assert!(parse_transform("1 0 0 0").unwrap_err().contains("found 4"));
+        assert!(
+            parse_transform("1 0 0 0 0 1 0 0 0 0 1 0 0 0 2 1")
+                .unwrap_err()
+                .contains("last row")
+        );
+        assert!(
+            parse_transform("1 0 0 0 0 1 0 0 0 0 1 nan")
+                .unwrap_err()
+                .contains("non-finite")
+        );
+        assert!(
+            parse_transform("1 0 0 0 0 1 0 0 0 0 1 zero")
+                .unwrap_err()
+                .contains("\"zero\"")
+        );
+        let path = write_temp("t.txt", b"1 0 0 1\n0 1 0 2\n0 0 1 3\n");
+        assert_eq!(read_transform(&path).unwrap()[(2, 3)], 3.0);
+        fs::remove_file(&path).unwrap();
+        assert!(
+            read_transform(&temp_path("absent.txt"))
+                .unwrap_err()
+                .contains("absent.txt")
+        );
+    }
+
+    #[test]
+    fn writers_round_trip_exactly() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+        let points: Vec<Point> = (0..200)
+            .map(|_| [0, 1, 2].map(|_| rng.random_range(-1e3..1e3) * rng.random::<f64>()))
+            .collect();
+        let normals: Vec<Point> = points.iter().map(|p| [p[1], -p[0], 1e-9 * p[2]]).collect();
+
+        let xyz = temp_path("round.xyz");
+        write_cloud_xyz(&xyz, &points).unwrap();
+        assert_eq!(read_cloud(&xyz).unwrap().points, points);
+
+        let pcd = temp_path("round.pcd");
+        write_cloud_pcd_ascii(&pcd, &points, Some(&normals)).unwrap();
+        let cloud = read_cloud(&pcd).unwrap();
+        assert_eq!((cloud.points, cloud.normals), (points.clone(), Some(normals)));
+        write_cloud_pcd_ascii(&pcd, &points, None).unwrap();
+        assert_eq!(read_cloud(&pcd).unwrap().normals, None);
+        assert!(write_cloud_pcd_ascii(&pcd, &points, Some(&points[..3])).is_err());
+        for path in [xyz, pcd] {
+            fs::remove_file(path).unwrap();
+        }
+        let unwritable = temp_path("no-such-dir").join("x.xyz");
+        assert!(
+            write_cloud_xyz(&unwritable, &points)
+                .unwrap_err()
+                .contains("cannot write")
+        );
+    }
+}
