@@ -143,7 +143,7 @@ pub fn student_t_scale2(dof: f64, residuals: &[f64], cols: usize) -> f64 {
     let denominator = rows as f64 * m;
     let mut s2 = squared.iter().sum::<f64>() / denominator;
     for _ in 0..STUDENT_T_MAX_ITERATIONS {
-        if !(s2 > 0.0) {
+        if !(s2.is_finite() && s2 > 0.0) {
             return 0.0;
         }
         let next = squared

@@ -44,7 +44,12 @@ pub fn from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
 /// Rotation angle of a rotation matrix, accurate near 0 (atan2 of sin and cos).
 pub fn rotation_angle(r: &Matrix3<f64>) -> f64 {
     let sin = 0.5
-        * Vector3::new(r[(2, 1)] - r[(1, 2)], r[(0, 2)] - r[(2, 0)], r[(1, 0)] - r[(0, 1)]).norm();
+        * Vector3::new(
+            r[(2, 1)] - r[(1, 2)],
+            r[(0, 2)] - r[(2, 0)],
+            r[(1, 0)] - r[(0, 1)],
+        )
+        .norm();
     let cos = 0.5 * (r.trace() - 1.0);
     sin.atan2(cos)
 }
@@ -52,7 +57,10 @@ pub fn rotation_angle(r: &Matrix3<f64>) -> f64 {
 /// Rotation angle (radians) and translation distance between two transforms.
 pub fn transform_change(old: &Matrix4<f64>, new: &Matrix4<f64>) -> (f64, f64) {
     let dr = rotation_part(new) * rotation_part(old).transpose();
-    (rotation_angle(&dr), (translation_part(new) - translation_part(old)).norm())
+    (
+        rotation_angle(&dr),
+        (translation_part(new) - translation_part(old)).norm(),
+    )
 }
 
 /// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation.
@@ -75,7 +83,7 @@ pub struct Solve {
 /// `None` when the weights sum to zero.
 pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
-    if !(total > 0.0) || !total.is_finite() {
+    if !(total.is_finite() && total > 0.0) {
         return None;
     }
     let mut mean_a = Vector3::zeros();
@@ -95,7 +103,8 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
     let (u, v_t) = (svd.u?, svd.v_t?);
     let s = svd.singular_values;
     let largest = s.max();
-    let rank_deficient = !(largest > 0.0) || s.iter().filter(|&&v| v > KABSCH_RANK_RATIO * largest).count() < 2;
+    let rank_deficient =
+        !(largest.is_finite() && largest > 0.0) || s.iter().filter(|&&v| v > KABSCH_RANK_RATIO * largest).count() < 2;
     // R = V·diag(1, 1, det(V·Uᵀ))·Uᵀ keeps a proper rotation.
     let v = v_t.transpose();
     let mut d = Matrix3::identity();
@@ -112,9 +121,13 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
 /// transform. `points[i]` = (T·a_i, q_i, n_i). The update is the exact rotation about the
 /// weighted centroid (so rotation and translation are decoupled and well scaled); directions
 /// the data do not constrain are left unchanged. `None` when the weights sum to zero.
-pub fn point_to_plane_step(current: &Matrix4<f64>, points: &[(Point, Point, Point)], weights: &[f64]) -> Option<Solve> {
+pub fn point_to_plane_step(
+    current: &Matrix4<f64>,
+    points: &[(Point, Point, Point)],
+    weights: &[f64],
+) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
-    if !(total > 0.0) || !total.is_finite() {
+    if !(total.is_finite() && total > 0.0) {
         return None;
     }
     let mut centre = Vector3::zeros();
@@ -147,7 +160,7 @@ pub fn point_to_plane_step(current: &Matrix4<f64>, points: &[(Point, Point, Poin
     }
     let eigen = SymmetricEigen::new(hessian);
     let largest = eigen.eigenvalues.max();
-    if !(largest > 0.0) || !largest.is_finite() {
+    if !(largest.is_finite() && largest > 0.0) {
         return None;
     }
     let mut step = Vector6::zeros();
@@ -186,7 +199,11 @@ mod tests {
         (0..60)
             .map(|i| {
                 let f = i as f64;
-                [(f * 0.37).sin() * 2.0, (f * 0.91).cos(), (f * 0.13).sin() * 3.0 + 0.1 * f]
+                [
+                    (f * 0.37).sin() * 2.0,
+                    (f * 0.91).cos(),
+                    (f * 0.13).sin() * 3.0 + 0.1 * f,
+                ]
             })
             .collect()
     }
@@ -194,7 +211,10 @@ mod tests {
     #[test]
     fn weighted_kabsch_recovers_exact_transform() {
         let t = example_transform();
-        let pairs: Vec<(Point, Point)> = cube_points().iter().map(|a| (*a, transform_point(&t, a))).collect();
+        let pairs: Vec<(Point, Point)> = cube_points()
+            .iter()
+            .map(|a| (*a, transform_point(&t, a)))
+            .collect();
         let solve = weighted_rigid_fit(&pairs, &vec![1.0; pairs.len()]).unwrap();
         assert!((solve.transform - t).abs().max() < 1e-10);
         assert!(!solve.rank_deficient);
@@ -203,7 +223,10 @@ mod tests {
     #[test]
     fn zero_weights_drop_outliers_from_kabsch() {
         let t = example_transform();
-        let mut pairs: Vec<(Point, Point)> = cube_points().iter().map(|a| (*a, transform_point(&t, a))).collect();
+        let mut pairs: Vec<(Point, Point)> = cube_points()
+            .iter()
+            .map(|a| (*a, transform_point(&t, a)))
+            .collect();
         let mut weights = vec![1.0; pairs.len()];
         pairs.push(([0.0; 3], [100.0, 50.0, -3.0]));
         weights.push(0.0);
@@ -213,11 +236,13 @@ mod tests {
 
     #[test]
     fn collinear_points_are_rank_deficient() {
-        let pairs: Vec<(Point, Point)> = (0..10).map(|i| ([i as f64, 0.0, 0.0], [i as f64, 1.0, 0.0])).collect();
-        let solve = weighted_rigid_fit(&pairs, &vec![1.0; 10]).unwrap();
+        let pairs: Vec<(Point, Point)> = (0..10)
+            .map(|i| ([i as f64, 0.0, 0.0], [i as f64, 1.0, 0.0]))
+            .collect();
+        let solve = weighted_rigid_fit(&pairs, &[1.0; 10]).unwrap();
         assert!(solve.rank_deficient);
         assert!(solve.transform.iter().all(|v| v.is_finite()));
-        assert!(weighted_rigid_fit(&pairs, &vec![0.0; 10]).is_none());
+        assert!(weighted_rigid_fit(&pairs, &[0.0; 10]).is_none());
     }
 
     #[test]
@@ -250,7 +275,9 @@ mod tests {
                 .zip(&target)
                 .map(|(a, (q, n))| (transform_point(&t, a), *q, *n))
                 .collect();
-            t = point_to_plane_step(&t, &pts, &vec![1.0; pts.len()]).unwrap().transform;
+            t = point_to_plane_step(&t, &pts, &vec![1.0; pts.len()])
+                .unwrap()
+                .transform;
         }
         assert!((t - t_true).abs().max() < 1e-9, "{t}");
     }

@@ -74,8 +74,16 @@ pub fn register_clouds(
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;
     let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
-    let mut problem = CloudProblem::new(source, target, target_normals, source_sigma, target_sigma, config, workers)
-        .map_err(Error::InvalidArgument)?;
+    let mut problem = CloudProblem::new(
+        source,
+        target,
+        target_normals,
+        source_sigma,
+        target_sigma,
+        config,
+        workers,
+    )
+    .map_err(Error::InvalidArgument)?;
     run(&mut problem, init, config)
 }
 
@@ -105,13 +113,18 @@ pub fn estimate_inliers(
         return Err(Error::NonFinite(format!("residuals[{i}] is {}", residuals[i])));
     }
     if !(beta.is_finite() && beta >= 0.0) {
-        return Err(Error::InvalidArgument(format!("beta must be finite and >= 0, got {beta}")));
+        return Err(Error::InvalidArgument(format!(
+            "beta must be finite and >= 0, got {beta}"
+        )));
     }
     let normalised: Vec<f64> = match row_scales {
         None => residuals.to_vec(),
         Some(scales) => {
             if scales.len() != rows {
-                return Err(Error::InvalidArgument(format!("{} row scales for {rows} rows", scales.len())));
+                return Err(Error::InvalidArgument(format!(
+                    "{} row scales for {rows} rows",
+                    scales.len()
+                )));
             }
             if let Some(i) = scales.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
                 return Err(Error::InvalidArgument(format!(
@@ -119,7 +132,11 @@ pub fn estimate_inliers(
                     scales[i]
                 )));
             }
-            residuals.chunks_exact(cols).zip(scales).flat_map(|(row, s)| row.iter().map(move |r| r / s)).collect()
+            residuals
+                .chunks_exact(cols)
+                .zip(scales)
+                .flat_map(|(row, s)| row.iter().map(move |r| r / s))
+                .collect()
         }
     };
     let mut sie = SieEstimator::new(options.clone());
@@ -139,7 +156,9 @@ pub fn estimate_inliers(
 
 fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error> {
     if count < minimum {
-        return Err(Error::TooFewPoints(format!("{what}: {count} given, at least {minimum} needed")));
+        return Err(Error::TooFewPoints(format!(
+            "{what}: {count} given, at least {minimum} needed"
+        )));
     }
     Ok(())
 }
@@ -147,7 +166,10 @@ fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error>
 fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
     match points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
         None => Ok(()),
-        Some(i) => Err(Error::NonFinite(format!("{what}[{i}] = {:?} is not finite", points[i]))),
+        Some(i) => Err(Error::NonFinite(format!(
+            "{what}[{i}] = {:?} is not finite",
+            points[i]
+        ))),
     }
 }
 
@@ -161,7 +183,11 @@ pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>
     if !t.iter().all(|v| v.is_finite()) {
         return bad("has a non-finite entry");
     }
-    if t.row(3).iter().zip([0.0, 0.0, 0.0, 1.0]).any(|(a, b)| (a - b).abs() > 1e-9) {
+    if t.row(3)
+        .iter()
+        .zip([0.0, 0.0, 0.0, 1.0])
+        .any(|(a, b)| (a - b).abs() > 1e-9)
+    {
         return bad("must have last row 0 0 0 1");
     }
     let r = rotation_part(t);
@@ -200,7 +226,10 @@ enum Weighting {
         annealing: bool,
         frozen: bool,
     },
-    Baseline { cost: CostFunction, scale: f64 },
+    Baseline {
+        cost: CostFunction,
+        scale: f64,
+    },
 }
 
 /// Residuals divided by F, and the IRLS weights (eq. regprob2).
@@ -223,7 +252,14 @@ impl Weighting {
     }
 
     /// Fits the cost to this iteration's residuals and fills `work.weights`.
-    fn update(&mut self, rows: &Rows, cols: usize, config: &RegistrationConfig, first: bool, work: &mut Workspace) {
+    fn update(
+        &mut self,
+        rows: &Rows,
+        cols: usize,
+        config: &RegistrationConfig,
+        first: bool,
+        work: &mut Workspace,
+    ) {
         let n = rows.len();
         work.weights.resize(n, 0.0);
         work.probabilities.resize(n, 0.0);
@@ -250,7 +286,10 @@ impl Weighting {
                 }
                 estimator.probabilities(&work.normalised, cols, &mut work.probabilities);
                 let p = estimator.mean_shape();
-                let width = estimator.effective_scales().into_iter().fold(f64::INFINITY, f64::min);
+                let width = estimator
+                    .effective_scales()
+                    .into_iter()
+                    .fold(f64::INFINITY, f64::min);
                 let delta = (SHAPE_DELTA * width).max(1e-12);
                 for i in 0..n {
                     // eq. (regprob3) / (regprob3GGD): w = σ^-p·max(‖r‖,δ)^(p-2)·P(I|r); σ^-p is common
@@ -305,7 +344,11 @@ impl Weighting {
 }
 
 fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
-    values[row * cols..(row + 1) * cols].iter().map(|v| v * v).sum::<f64>().sqrt()
+    values[row * cols..(row + 1) * cols]
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
 }
 
 fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
@@ -320,7 +363,11 @@ fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
 
 /// The IRLS loop (eq. regprob2) with SIE's β schedule: run to convergence, halve β, repeat
 /// until β ≪ σ, then a final round with adaptive k (§4.3, §4.5).
-fn run(problem: &mut dyn Problem, init: Matrix4<f64>, config: &RegistrationConfig) -> Result<RegistrationResult, Error> {
+fn run(
+    problem: &mut dyn Problem,
+    init: Matrix4<f64>,
+    config: &RegistrationConfig,
+) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
     let mut transform = init;
     let mut weighting = Weighting::new(config);
@@ -363,15 +410,18 @@ fn run(problem: &mut dyn Problem, init: Matrix4<f64>, config: &RegistrationConfi
                 translation_change,
             ));
         }
-        let below_tolerance =
-            translation_change <= config.translation_tolerance && rotation_change <= config.rotation_tolerance;
+        let below_tolerance = translation_change <= config.translation_tolerance
+            && rotation_change <= config.rotation_tolerance;
         if let Weighting::Sie {
             estimator,
             annealing,
             frozen,
         } = &mut weighting
         {
-            let width = estimator.effective_scales().into_iter().fold(f64::INFINITY, f64::min);
+            let width = estimator
+                .effective_scales()
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
             let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * width;
             level_iterations += 1;
             if *annealing {
@@ -426,7 +476,11 @@ fn run(problem: &mut dyn Problem, init: Matrix4<f64>, config: &RegistrationConfi
         penalty,
         noise_shape,
         inlier_fraction: weight_sum / source_count as f64,
-        rmse: if weight_sum > 0.0 { (weighted_square / weight_sum).sqrt() } else { 0.0 },
+        rmse: if weight_sum > 0.0 {
+            (weighted_square / weight_sum).sqrt()
+        } else {
+            0.0
+        },
         probabilities,
         correspondences,
         histograms,
@@ -449,12 +503,17 @@ fn trace_entry(
         Weighting::Sie { .. } => work.probabilities.iter().sum::<f64>() / n as f64,
         Weighting::Baseline { .. } => {
             let largest = work.weights.iter().cloned().fold(0.0, f64::max);
-            if largest > 0.0 { work.weights.iter().sum::<f64>() / (n as f64 * largest) } else { 0.0 }
+            if largest > 0.0 {
+                work.weights.iter().sum::<f64>() / (n as f64 * largest)
+            } else {
+                0.0
+            }
         }
     };
     let weight_sum: f64 = work.weights.iter().sum();
-    let weighted_square: f64 =
-        (0..n).map(|i| work.weights[i] * row_norm(&rows.residual, cols, i).powi(2)).sum();
+    let weighted_square: f64 = (0..n)
+        .map(|i| work.weights[i] * row_norm(&rows.residual, cols, i).powi(2))
+        .sum();
     TraceEntry {
         iteration,
         annealing: matches!(weighting, Weighting::Sie { annealing: true, .. }),
@@ -462,7 +521,11 @@ fn trace_entry(
         beta: beta.first().copied().unwrap_or(0.0),
         penalty,
         inlier_fraction: mean_probability,
-        rmse: if weight_sum > 0.0 { (weighted_square / weight_sum).sqrt() } else { 0.0 },
+        rmse: if weight_sum > 0.0 {
+            (weighted_square / weight_sum).sqrt()
+        } else {
+            0.0
+        },
         translation_change,
         rotation_change,
         correspondences: n,

@@ -101,7 +101,9 @@ impl<'a> CorrespondenceProblem<'a> {
             source: (0..n as u32).collect(),
             target: (0..n as u32).collect(),
             residual: vec![0.0; 3 * n],
-            scale: (0..n).map(|i| noise_scale(&source_sigma, &target_sigma, i, i)).collect(),
+            scale: (0..n)
+                .map(|i| noise_scale(&source_sigma, &target_sigma, i, i))
+                .collect(),
         };
         CorrespondenceProblem {
             source,
@@ -186,15 +188,22 @@ impl<'a> CloudProblem<'a> {
         workers: Workers,
     ) -> Result<Self, String> {
         if source.len() >= NO_MATCH as usize {
-            return Err(format!("source has {} points; at most {} are supported", source.len(), NO_MATCH - 1));
+            return Err(format!(
+                "source has {} points; at most {} are supported",
+                source.len(),
+                NO_MATCH - 1
+            ));
         }
         let index = NearestNeighbours::new(target)?;
         let normals = match (config.metric, target_normals) {
             (Metric::PointToPoint, _) => Vec::new(),
             (Metric::PointToPlane, Some(given)) => given.to_vec(),
-            (Metric::PointToPlane, None) => {
-                estimate_normals(target, &index, config.normal_neighbours.min(target.len()), &workers)
-            }
+            (Metric::PointToPlane, None) => estimate_normals(
+                target,
+                &index,
+                config.normal_neighbours.min(target.len()),
+                &workers,
+            ),
         };
         let sample = sample_indices(source.len(), config.max_correspondences, config.seed);
         Ok(CloudProblem {
@@ -227,19 +236,24 @@ impl<'a> CloudProblem<'a> {
         );
         let (source, sample, index, normals) = (self.source, &self.sample, &self.index, &self.normals);
         let plane = self.metric == Metric::PointToPlane;
-        self.workers.for_each_chunk_mut(&mut self.matches, |start, chunk| {
-            for (k, slot) in chunk.iter_mut().enumerate() {
-                let s = if all { start + k } else { sample[start + k] as usize };
-                let point = transform_point(transform, &source[s]);
-                let (t, _) = index.nearest_one(&point);
-                // A target point without a normal (degenerate neighbourhood) gives no plane.
-                let usable = !plane || normals[t] != [0.0; 3];
-                *slot = Match {
-                    target: if usable { t as u32 } else { NO_MATCH },
-                    point,
-                };
-            }
-        });
+        self.workers
+            .for_each_chunk_mut(&mut self.matches, |start, chunk| {
+                for (k, slot) in chunk.iter_mut().enumerate() {
+                    let s = if all {
+                        start + k
+                    } else {
+                        sample[start + k] as usize
+                    };
+                    let point = transform_point(transform, &source[s]);
+                    let (t, _) = index.nearest_one(&point);
+                    // A target point without a normal (degenerate neighbourhood) gives no plane.
+                    let usable = !plane || normals[t] != [0.0; 3];
+                    *slot = Match {
+                        target: if usable { t as u32 } else { NO_MATCH },
+                        point,
+                    };
+                }
+            });
         let rows = &mut self.rows;
         rows.clear();
         self.row_points.clear();
@@ -259,7 +273,8 @@ impl<'a> CloudProblem<'a> {
             } else {
                 rows.residual.extend_from_slice(&d);
             }
-            rows.scale.push(noise_scale(&self.source_sigma, &self.target_sigma, s, t));
+            rows.scale
+                .push(noise_scale(&self.source_sigma, &self.target_sigma, s, t));
             self.row_points.push(m.point);
         }
     }
@@ -272,8 +287,10 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
         return (0..n as u32).collect();
     }
     let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(seed);
-    let mut chosen: Vec<u32> =
-        rand::seq::index::sample(&mut rng, n, limit).into_iter().map(|i| i as u32).collect();
+    let mut chosen: Vec<u32> = rand::seq::index::sample(&mut rng, n, limit)
+        .into_iter()
+        .map(|i| i as u32)
+        .collect();
     chosen.sort_unstable();
     chosen
 }

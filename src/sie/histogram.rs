@@ -119,7 +119,7 @@ impl HistogramModel {
         self.samples_total = samples().count();
         for refit in 0..=MAX_RANGE_REFITS {
             let (lo, hi) = self.interval(pooled, options);
-            if !(hi > lo) || !(hi - lo).is_finite() {
+            if !((hi - lo).is_finite() && hi > lo) {
                 self.fit_without_spread(options);
                 return;
             }
@@ -176,7 +176,12 @@ impl HistogramModel {
         // Kernel std ∝ width (§4.5); when the bin cap binds, each bin holds more samples than
         // data_per_bin, the histogram is less noisy, and the kernel narrows in proportion.
         let capped = (bins as f64 / wanted.max(1) as f64).min(1.0);
-        let std_bins = options.smoothing * bins as f64 * capped;
+        // When the bin floor binds, bins hold fewer than data_per_bin samples; widen the kernel
+        // until it averages about data_per_bin samples, so the peak height α stays as precise
+        // as the paper's sample-variance argument intends.
+        let per_bin = inside.max(1) as f64 / bins as f64;
+        let sparse = options.data_per_bin / ((2.0 * std::f64::consts::PI).sqrt() * per_bin);
+        let std_bins = (options.smoothing * bins as f64 * capped).max(sparse);
         smooth(&self.counts, &mut self.smoothed, std_bins, pooled);
     }
 
@@ -195,7 +200,7 @@ impl HistogramModel {
             self.shape.alpha = alpha;
         }
         let total: f64 = self.smoothed.iter().sum();
-        if !(self.shape.alpha > 0.0) || total <= 0.0 {
+        if !(self.shape.alpha.is_finite() && self.shape.alpha > 0.0) || total <= 0.0 {
             self.peak_found = false;
             return;
         }

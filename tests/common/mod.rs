@@ -1,0 +1,30 @@
+//! Shared helpers for the data-driven tests.
+#![allow(dead_code)]
+use std::path::{Path, PathBuf};
+
+use nalgebra::Matrix4;
+use sie::geometry::{rotation_angle, rotation_part, translation_part};
+
+/// The real-scan folder: `$SIE_DATA_DIR`, by default `<crate>/../shared/data`. Returns `None`
+/// (the caller skips) only outside CI; under CI (env `CI` set) a missing folder is a failure,
+/// so a wrong path cannot turn these tests into no-ops.
+pub fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("SIE_DATA_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    if dir.is_dir() {
+        return Some(dir);
+    }
+    assert!(std::env::var_os("CI").is_none(), "data folder {} not found under CI", dir.display());
+    eprintln!("skipping: data folder {} not found (set SIE_DATA_DIR)", dir.display());
+    None
+}
+
+/// Rotation (degrees) and translation distance of `estimate` from `truth`.
+pub fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
+    let difference = truth.try_inverse().expect("rigid") * estimate;
+    (
+        rotation_angle(&rotation_part(&difference)).to_degrees(),
+        translation_part(&difference).norm(),
+    )
+}
