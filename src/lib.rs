@@ -16,6 +16,7 @@ pub mod normals;
 pub mod parallel;
 pub mod registration;
 pub mod sie;
+pub mod synthetic;
 
 pub use cost::CostFunction;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};

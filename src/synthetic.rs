@@ -1,0 +1,574 @@
+//! Deterministic (seeded) test scenes shared by the demo, the tests and the benchmarks.
+//!
+//! * [`paper_simulation`]: the paper's correspondence experiment (§6).
+//! * [`room_scene`]: two partially overlapping noisy scans of a furnished room, with ground truth.
+use std::f64::consts::TAU;
+
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vector3};
+use rand::rngs::Xoshiro256PlusPlus;
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+use crate::registration::Point;
+
+/// Point pairs for correspondence registration: `source[i]` ↔ `target[i]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Correspondences {
+    /// A after T0 (inliers only; outliers' A is left as drawn).
+    pub source: Vec<Point>,
+    /// B.
+    pub target: Vec<Point>,
+    /// Which pairs are inliers (the first `inliers` ones).
+    pub is_inlier: Vec<bool>,
+}
+
+/// The paper's simulation (footnote in §6).
+///
+/// * Inliers: A uniform in [0,1]³, B = A + N(0, σ²) per axis.
+/// * Outliers: A uniform in [0,1]³, B uniform in A + [−1,1]³.
+/// * Then the inliers' A are transformed by `t0`: source = T0·A.
+///
+/// Inliers come first, then outliers. Registration maps source → target, so the ideal answer
+/// `T_target_source` is ≈ T0⁻¹ (exactly T0⁻¹ for σ = 0).
+///
+/// # Panics
+/// If `noise_sigma` is negative or not finite.
+pub fn paper_simulation(
+    inliers: usize,
+    outliers: usize,
+    noise_sigma: f64,
+    t0: &Matrix4<f64>,
+    seed: u64,
+) -> Correspondences {
+    let noise = gaussian(noise_sigma);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let total = inliers + outliers;
+    let mut result = Correspondences {
+        source: Vec::with_capacity(total),
+        target: Vec::with_capacity(total),
+        is_inlier: Vec::with_capacity(total),
+    };
+    for _ in 0..inliers {
+        let a: Point = [0; 3].map(|_| rng.random::<f64>());
+        let b = a.map(|c| c + noise.sample(&mut rng));
+        result.source.push(transform_point(t0, &a));
+        result.target.push(b);
+        result.is_inlier.push(true);
+    }
+    for _ in 0..outliers {
+        let a: Point = [0; 3].map(|_| rng.random::<f64>());
+        let b = a.map(|c| c + rng.random_range(-1.0..1.0));
+        result.source.push(a);
+        result.target.push(b);
+        result.is_inlier.push(false);
+    }
+    result
+}
+
+/// Two scans of one room for ICP tests, with ground truth.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RoomScene {
+    /// The room seen from the source pose, in the source frame.
+    pub source: Vec<Point>,
+    /// The room in the world frame, which is the target frame.
+    pub target: Vec<Point>,
+    /// Ground truth: p_target = T · p_source ([`ROOM_GT_ROTATION_DEGREES`] about
+    /// [`ROOM_GT_AXIS`], translation [`ROOM_GT_TRANSLATION`]).
+    pub t_target_source: Matrix4<f64>,
+}
+
+/// Ground-truth rotation of [`room_scene`]: angle (degrees) …
+pub const ROOM_GT_ROTATION_DEGREES: f64 = 7.0;
+/// … about this (not normalised) axis, mostly yaw with some tilt so all six degrees of freedom
+/// are exercised …
+pub const ROOM_GT_AXIS: [f64; 3] = [0.2, -0.3, 0.93];
+/// … and translation (metres, |t| ≈ 0.2).
+pub const ROOM_GT_TRANSLATION: [f64; 3] = [0.15, -0.1, 0.08];
+
+/// Room interior in the world frame (metres): 6 × 5 × 3 centred on the sensor at the origin,
+/// 1.2 m above the floor, so that normals oriented towards the origin face into the room.
+pub const ROOM_MIN: [f64; 3] = [-3.0, -2.5, -1.2];
+pub const ROOM_MAX: [f64; 3] = [3.0, 2.5, 1.8];
+
+/// Width of the slab at each x end that only one scan sees: the target lacks x > 3 − w, the
+/// source lacks x < −3 + w. About 1/6 of the surface each, so ~20 % of each cloud has no
+/// counterpart in the other.
+pub const ROOM_CROP_WIDTH: f64 = 0.5;
+
+/// Share of each cloud that is uniform outliers in the room volume.
+pub const ROOM_OUTLIER_FRACTION: f64 = 0.03;
+
+/// Two noisy scans of a furnished room: floor, four walls and ceiling of a 6 × 5 × 3 m room
+/// plus boxes (table, cabinet, crate), cylinders (bin, pillar) and spheres, sampled uniformly
+/// by visible area (floor under furniture excluded).
+///
+/// Each cloud has `points` points: independent surface samples + N(0, σ²) per axis, plus
+/// [`ROOM_OUTLIER_FRACTION`] uniform outliers in the room volume. The target is in the world
+/// frame and lacks the +x slab; the source lacks the −x slab (see [`ROOM_CROP_WIDTH`]) and is
+/// expressed in the source frame: source points = T⁻¹ · world points, with the fixed ground
+/// truth T = `t_target_source`.
+///
+/// # Panics
+/// If `noise_sigma` is negative or not finite.
+pub fn room_scene(points: usize, noise_sigma: f64, seed: u64) -> RoomScene {
+    let noise = gaussian(noise_sigma);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let room = Room::furnished();
+    let ground_truth = room_ground_truth();
+    let source_from_world = ground_truth.inverse().to_homogeneous();
+
+    let x_limit = ROOM_MAX[0] - ROOM_CROP_WIDTH;
+    let target = room.scan(points, &noise, &mut rng, |p| p[0] <= x_limit);
+    let source_world = room.scan(points, &noise, &mut rng, |p| p[0] >= -x_limit);
+    let source = source_world
+        .iter()
+        .map(|p| transform_point(&source_from_world, p))
+        .collect();
+    RoomScene {
+        source,
+        target,
+        t_target_source: ground_truth.to_homogeneous(),
+    }
+}
+
+/// The fixed ground truth of [`room_scene`].
+fn room_ground_truth() -> Isometry3<f64> {
+    let axis = Unit::new_normalize(Vector3::from(ROOM_GT_AXIS));
+    let rotation = UnitQuaternion::from_axis_angle(&axis, ROOM_GT_ROTATION_DEGREES.to_radians());
+    Isometry3::from_parts(Translation3::from(Vector3::from(ROOM_GT_TRANSLATION)), rotation)
+}
+
+fn gaussian(sigma: f64) -> Normal<f64> {
+    assert!(
+        sigma.is_finite() && sigma >= 0.0,
+        "noise sigma must be finite and >= 0, got {sigma}"
+    );
+    Normal::new(0.0, sigma).unwrap_or_else(|_| unreachable!("checked above"))
+}
+
+fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
+    let q = t.transform_point(&Point3::from(*p));
+    [q.x, q.y, q.z]
+}
+
+/// A surface piece that can be sampled uniformly by area.
+enum Patch {
+    /// origin + s·u + t·v for s, t ∈ [0, 1].
+    Parallelogram {
+        origin: Vector3<f64>,
+        u: Vector3<f64>,
+        v: Vector3<f64>,
+    },
+    /// Lateral surface of a vertical cylinder standing on `base` (centre of the bottom).
+    CylinderSide {
+        base: Vector3<f64>,
+        radius: f64,
+        height: f64,
+    },
+    /// Horizontal disc (a cylinder's top).
+    Disc {
+        centre: Vector3<f64>,
+        radius: f64,
+    },
+    Sphere {
+        centre: Vector3<f64>,
+        radius: f64,
+    },
+}
+
+impl Patch {
+    fn area(&self) -> f64 {
+        match self {
+            Patch::Parallelogram { u, v, .. } => u.cross(v).norm(),
+            Patch::CylinderSide { radius, height, .. } => TAU * radius * height,
+            Patch::Disc { radius, .. } => 0.5 * TAU * radius * radius,
+            Patch::Sphere { radius, .. } => 2.0 * TAU * radius * radius,
+        }
+    }
+
+    fn sample(&self, rng: &mut Xoshiro256PlusPlus) -> Vector3<f64> {
+        match self {
+            Patch::Parallelogram { origin, u, v } => {
+                origin + u * rng.random::<f64>() + v * rng.random::<f64>()
+            }
+            Patch::CylinderSide { base, radius, height } => {
+                let angle = rng.random_range(0.0..TAU);
+                base + Vector3::new(
+                    radius * angle.cos(),
+                    radius * angle.sin(),
+                    height * rng.random::<f64>(),
+                )
+            }
+            Patch::Disc { centre, radius } => {
+                // √u radius makes the density uniform over the disc.
+                let (r, angle) = (radius * rng.random::<f64>().sqrt(), rng.random_range(0.0..TAU));
+                centre + Vector3::new(r * angle.cos(), r * angle.sin(), 0.0)
+            }
+            Patch::Sphere { centre, radius } => {
+                // Archimedes: z uniform in [−1, 1] gives a uniform point on the sphere.
+                let (z, angle) = (rng.random_range(-1.0..1.0f64), rng.random_range(0.0..TAU));
+                let ring = (1.0 - z * z).sqrt();
+                centre + Vector3::new(ring * angle.cos(), ring * angle.sin(), z) * *radius
+            }
+        }
+    }
+}
+
+/// Floor area hidden under furniture (no samples there).
+enum Footprint {
+    Rectangle { min: [f64; 2], max: [f64; 2] },
+    Circle { centre: [f64; 2], radius: f64 },
+}
+
+impl Footprint {
+    fn covers(&self, p: &Vector3<f64>) -> bool {
+        match self {
+            Footprint::Rectangle { min, max } => {
+                (min[0]..=max[0]).contains(&p.x) && (min[1]..=max[1]).contains(&p.y)
+            }
+            Footprint::Circle { centre, radius } => {
+                (p.x - centre[0]).powi(2) + (p.y - centre[1]).powi(2) <= radius * radius
+            }
+        }
+    }
+}
+
+struct Room {
+    patches: Vec<Patch>,
+    /// Running sum of the patch areas, for picking a patch by area.
+    cumulative_area: Vec<f64>,
+    floor_index: usize,
+    footprints: Vec<Footprint>,
+}
+
+impl Room {
+    fn furnished() -> Room {
+        let [x0, y0, floor] = ROOM_MIN;
+        let [x1, y1, ceiling] = ROOM_MAX;
+        let v = Vector3::new;
+        let (dx, dy, dz) = (x1 - x0, y1 - y0, ceiling - floor);
+        let mut patches = vec![
+            Patch::Parallelogram {
+                origin: v(x0, y0, floor),
+                u: v(dx, 0.0, 0.0),
+                v: v(0.0, dy, 0.0),
+            },
+            Patch::Parallelogram {
+                origin: v(x0, y0, ceiling),
+                u: v(dx, 0.0, 0.0),
+                v: v(0.0, dy, 0.0),
+            },
+            Patch::Parallelogram {
+                origin: v(x0, y0, floor),
+                u: v(dx, 0.0, 0.0),
+                v: v(0.0, 0.0, dz),
+            },
+            Patch::Parallelogram {
+                origin: v(x0, y1, floor),
+                u: v(dx, 0.0, 0.0),
+                v: v(0.0, 0.0, dz),
+            },
+            Patch::Parallelogram {
+                origin: v(x0, y0, floor),
+                u: v(0.0, dy, 0.0),
+                v: v(0.0, 0.0, dz),
+            },
+            Patch::Parallelogram {
+                origin: v(x1, y0, floor),
+                u: v(0.0, dy, 0.0),
+                v: v(0.0, 0.0, dz),
+            },
+        ];
+        let floor_index = 0;
+        let mut footprints = Vec::new();
+        // Boxes standing on the floor: (min corner x, y), (size x, y), height.
+        let boxes = [
+            ([0.4, 0.4], [1.2, 0.8], 0.75),    // table
+            ([-2.0, 1.95], [0.6, 0.5], 1.8),   // cabinet, 5 cm off the +y wall
+            ([-1.25, -1.4], [0.5, 0.4], 0.45), // crate
+        ];
+        for (min, size, height) in boxes {
+            let origin = v(min[0], min[1], floor);
+            let (sx, sy, sz) = (v(size[0], 0.0, 0.0), v(0.0, size[1], 0.0), v(0.0, 0.0, height));
+            patches.extend([
+                Patch::Parallelogram {
+                    origin: origin + sz,
+                    u: sx,
+                    v: sy,
+                },
+                Patch::Parallelogram { origin, u: sx, v: sz },
+                Patch::Parallelogram {
+                    origin: origin + sy,
+                    u: sx,
+                    v: sz,
+                },
+                Patch::Parallelogram { origin, u: sy, v: sz },
+                Patch::Parallelogram {
+                    origin: origin + sx,
+                    u: sy,
+                    v: sz,
+                },
+            ]);
+            footprints.push(Footprint::Rectangle {
+                min,
+                max: [min[0] + size[0], min[1] + size[1]],
+            });
+        }
+        // Bin (closed top) and a floor-to-ceiling pillar.
+        for (centre, radius, height) in [([2.0, -1.5], 0.25, 0.9), ([-2.2, -1.8], 0.15, dz)] {
+            let base = v(centre[0], centre[1], floor);
+            patches.push(Patch::CylinderSide { base, radius, height });
+            if height < dz {
+                patches.push(Patch::Disc {
+                    centre: base + v(0.0, 0.0, height),
+                    radius,
+                });
+            }
+            footprints.push(Footprint::Circle { centre, radius });
+        }
+        // A ball on the floor and one on the table.
+        patches.push(Patch::Sphere {
+            centre: v(0.0, -0.5, floor + 0.35),
+            radius: 0.35,
+        });
+        patches.push(Patch::Sphere {
+            centre: v(1.2, 0.9, floor + 0.75 + 0.15),
+            radius: 0.15,
+        });
+
+        let cumulative_area = patches
+            .iter()
+            .scan(0.0, |sum, patch| {
+                *sum += patch.area();
+                Some(*sum)
+            })
+            .collect();
+        Room {
+            patches,
+            cumulative_area,
+            floor_index,
+            footprints,
+        }
+    }
+
+    /// A visible surface point, uniform by area.
+    fn sample_surface(&self, rng: &mut Xoshiro256PlusPlus) -> Vector3<f64> {
+        let total = self.cumulative_area.last().copied().unwrap_or(0.0);
+        loop {
+            let pick = rng.random::<f64>() * total;
+            let index = self
+                .cumulative_area
+                .partition_point(|&a| a <= pick)
+                .min(self.patches.len() - 1);
+            let p = self.patches[index].sample(rng);
+            if index != self.floor_index || !self.footprints.iter().any(|f| f.covers(&p)) {
+                return p;
+            }
+        }
+    }
+
+    /// `count` world points where `visible` holds: noisy surface samples plus outliers.
+    fn scan(
+        &self,
+        count: usize,
+        noise: &Normal<f64>,
+        rng: &mut Xoshiro256PlusPlus,
+        visible: impl Fn(&Point) -> bool,
+    ) -> Vec<Point> {
+        let outliers = (count as f64 * ROOM_OUTLIER_FRACTION).round() as usize;
+        let mut cloud = Vec::with_capacity(count);
+        while cloud.len() < count - outliers.min(count) {
+            let p = self.sample_surface(rng);
+            let p: Point = [p.x, p.y, p.z];
+            if visible(&p) {
+                cloud.push(p.map(|c| c + noise.sample(rng)));
+            }
+        }
+        while cloud.len() < count {
+            let p: Point = [0, 1, 2].map(|d| rng.random_range(ROOM_MIN[d]..ROOM_MAX[d]));
+            if visible(&p) {
+                cloud.push(p);
+            }
+        }
+        cloud
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nn::NearestNeighbours;
+    use crate::normals::estimate_normals;
+    use crate::parallel::Workers;
+
+    fn t0() -> Matrix4<f64> {
+        let rotation = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5);
+        (Translation3::new(0.5, -0.3, 0.2) * rotation).to_homogeneous()
+    }
+
+    #[test]
+    fn paper_simulation_follows_the_footnote() {
+        let (inliers, outliers, sigma) = (20_000, 5_000, 0.01);
+        let t0 = t0();
+        let sim = paper_simulation(inliers, outliers, sigma, &t0, 42);
+        assert_eq!(sim.source.len(), inliers + outliers);
+        assert_eq!(sim.target.len(), inliers + outliers);
+        assert!(sim.is_inlier[..inliers].iter().all(|&b| b));
+        assert!(sim.is_inlier[inliers..].iter().all(|&b| !b));
+
+        // T0⁻¹ undoes the source transform; the inlier residuals are then the noise.
+        let inverse = t0.try_inverse().unwrap();
+        let mut residuals = Vec::with_capacity(3 * inliers);
+        for (source, target) in sim.source[..inliers].iter().zip(&sim.target) {
+            let a = transform_point(&inverse, source);
+            assert!(
+                a.iter().all(|c| (-1e-12..=1.0 + 1e-12).contains(c)),
+                "A outside [0,1]³: {a:?}"
+            );
+            residuals.extend((0..3).map(|d| target[d] - a[d]));
+        }
+        let n = residuals.len() as f64;
+        let mean = residuals.iter().sum::<f64>() / n;
+        let std = (residuals.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / n).sqrt();
+        assert!(mean.abs() < 4.0 * sigma / n.sqrt(), "mean {mean}");
+        assert!((std / sigma - 1.0).abs() < 0.02, "std {std}");
+
+        for i in inliers..inliers + outliers {
+            let (a, b) = (sim.source[i], sim.target[i]);
+            assert!(a.iter().all(|c| (0.0..=1.0).contains(c)), "outlier A {a:?}");
+            assert!(
+                (0..3).all(|d| (b[d] - a[d]).abs() <= 1.0),
+                "outlier B {b:?} for A {a:?}"
+            );
+        }
+        // Outlier offsets really are spread over [−1, 1]: mean |b − a| ≈ 0.5 per axis.
+        let spread: f64 = (inliers..inliers + outliers)
+            .map(|i| (sim.target[i][0] - sim.source[i][0]).abs())
+            .sum::<f64>()
+            / outliers as f64;
+        assert!((spread - 0.5).abs() < 0.02, "{spread}");
+    }
+
+    #[test]
+    fn scenes_are_deterministic_per_seed() {
+        let t0 = t0();
+        assert_eq!(
+            paper_simulation(50, 10, 0.1, &t0, 7),
+            paper_simulation(50, 10, 0.1, &t0, 7)
+        );
+        assert_ne!(
+            paper_simulation(50, 10, 0.1, &t0, 7),
+            paper_simulation(50, 10, 0.1, &t0, 8)
+        );
+        assert_eq!(room_scene(500, 0.01, 3), room_scene(500, 0.01, 3));
+        assert_ne!(room_scene(500, 0.01, 3).source, room_scene(500, 0.01, 4).source);
+        // σ = 0 is exact: source maps onto the inliers' targets by T0⁻¹.
+        let exact = paper_simulation(10, 0, 0.0, &t0, 1);
+        let inverse = t0.try_inverse().unwrap();
+        for (s, t) in exact.source.iter().zip(&exact.target) {
+            let back = transform_point(&inverse, s);
+            assert!((0..3).all(|d| (back[d] - t[d]).abs() < 1e-12));
+        }
+    }
+
+    #[test]
+    fn room_ground_truth_is_the_documented_rigid_motion() {
+        let scene = room_scene(100, 0.0, 1);
+        let t = scene.t_target_source;
+        let r = t.fixed_view::<3, 3>(0, 0).into_owned();
+        assert!((r.transpose() * r - nalgebra::Matrix3::identity()).abs().max() < 1e-12);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+        let angle = ((r.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+        assert!((angle - 7.0).abs() < 1e-9, "{angle}");
+        let translation = t.fixed_view::<3, 1>(0, 3).norm();
+        assert!((translation - 0.2).abs() < 0.01, "{translation}");
+        assert_eq!(t.row(3), nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));
+    }
+
+    /// Distance from each query point to the target surface: the plane through the centroid
+    /// of its 10 nearest target points, with the PCA normal at the nearest one.
+    fn distances_to_surface(target: &[Point], queries: &[Point]) -> Vec<f64> {
+        let index = NearestNeighbours::new(target).unwrap();
+        let normals = estimate_normals(target, &index, 10, &Workers::new(1).unwrap());
+        let mut neighbours = Vec::new();
+        queries
+            .iter()
+            .map(|q| {
+                index.nearest_k(q, 10, &mut neighbours);
+                let centroid = neighbours.iter().fold([0.0; 3], |c, &i| {
+                    [0, 1, 2].map(|d| c[d] + target[i][d] / neighbours.len() as f64)
+                });
+                let n = normals[neighbours[0]];
+                (0..3).map(|d| n[d] * (q[d] - centroid[d])).sum::<f64>().abs()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn room_scans_overlap_under_the_ground_truth() {
+        let (points, sigma) = (30_000, 0.005);
+        let scene = room_scene(points, sigma, 9);
+        assert_eq!((scene.source.len(), scene.target.len()), (points, points));
+        let x_limit = ROOM_MAX[0] - ROOM_CROP_WIDTH;
+
+        let in_world: Vec<Point> = scene
+            .source
+            .iter()
+            .map(|p| transform_point(&scene.t_target_source, p))
+            .collect();
+        let only_in_source = in_world.iter().filter(|p| p[0] > x_limit).count() as f64 / points as f64;
+        let only_in_target = scene.target.iter().filter(|p| p[0] < -x_limit).count() as f64 / points as f64;
+        for share in [only_in_source, only_in_target] {
+            assert!((0.15..0.25).contains(&share), "non-overlapping share {share}");
+        }
+        let inside_room = in_world
+            .iter()
+            .filter(|p| (0..3).all(|d| p[d] > ROOM_MIN[d] - 5.0 * sigma && p[d] < ROOM_MAX[d] + 5.0 * sigma))
+            .count();
+        assert_eq!(inside_room, points, "GT does not map the source into the room");
+
+        let overlap: Vec<Point> = in_world
+            .iter()
+            .filter(|p| p[0].abs() < x_limit - 0.1)
+            .copied()
+            .collect();
+        let close = |queries: &[Point]| {
+            let d = distances_to_surface(&scene.target, queries);
+            d.iter().filter(|&&d| d < 3.0 * sigma).count() as f64 / d.len() as f64
+        };
+        // Surface points (97 %) are within 3σ of the target surface, bar edges and corners.
+        let aligned = close(&overlap);
+        assert!(aligned > 0.85, "only {aligned} of the overlap within 3σ");
+        // Without the ground truth they are not.
+        let unaligned: Vec<Point> = scene
+            .source
+            .iter()
+            .filter(|p| p[0].abs() < x_limit - 0.5)
+            .copied()
+            .collect();
+        let misaligned = close(&unaligned);
+        assert!(misaligned < 0.3, "{misaligned} within 3σ at identity");
+    }
+
+    #[test]
+    fn room_surface_sampling_is_uniform_by_area() {
+        // Floor (30 m² minus ~1.9 m² of footprints) against the ceiling (30 m²).
+        let room = Room::furnished();
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+        let samples: Vec<Vector3<f64>> = (0..200_000).map(|_| room.sample_surface(&mut rng)).collect();
+        let on = |z: f64| samples.iter().filter(|p| (p.z - z).abs() < 1e-12).count() as f64;
+        let (floor, ceiling) = (on(ROOM_MIN[2]), on(ROOM_MAX[2]));
+        let hidden = 0.96 + 0.3 + 0.2 + std::f64::consts::PI * (0.25f64.powi(2) + 0.15f64.powi(2));
+        let expected = (30.0 - hidden) / 30.0;
+        assert!(
+            (floor / ceiling - expected).abs() < 0.02,
+            "floor/ceiling {}",
+            floor / ceiling
+        );
+        assert!(
+            samples
+                .iter()
+                .all(|p| (0..3).all(|d| p[d] >= ROOM_MIN[d] - 1e-12 && p[d] <= ROOM_MAX[d] + 1e-12))
+        );
+    }
+}
