@@ -690,7 +690,8 @@ sie_status sie_context_register_d(struct sie_context *ctx,
  * `sie_context_register` with one unit normal per target point (float nx, ny, nz at
  * `target_normals_stride_bytes`, 0 = packed), used by point-to-plane instead of estimating
  * them. E.g. for a `pcl::PointCloud<pcl::PointNormal>`: `&cloud[0].normal_x` with stride 48.
- * A normal whose length differs from 1 by more than 1e-3 is INVALID_ARGUMENT; a NaN normal is
+ * A normal whose length differs from 1 by more than 1e-3 is INVALID_ARGUMENT, except an exact
+ * 0 0 0, which marks a point without a normal (never matched); a NaN normal is
  * NON_FINITE_INPUT.
  *
  * # Safety

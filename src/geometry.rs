@@ -103,8 +103,8 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
     let (u, v_t) = (svd.u?, svd.v_t?);
     let s = svd.singular_values;
     let largest = s.max();
-    let rank_deficient =
-        !(largest.is_finite() && largest > 0.0) || s.iter().filter(|&&v| v > KABSCH_RANK_RATIO * largest).count() < 2;
+    let rank_deficient = !(largest.is_finite() && largest > 0.0)
+        || s.iter().filter(|&&v| v > KABSCH_RANK_RATIO * largest).count() < 2;
     // R = V·diag(1, 1, det(V·Uᵀ))·Uᵀ keeps a proper rotation.
     let v = v_t.transpose();
     let mut d = Matrix3::identity();

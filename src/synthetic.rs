@@ -90,9 +90,10 @@ pub const ROOM_GT_TRANSLATION: [f64; 3] = [0.15, -0.1, 0.08];
 pub const ROOM_MIN: [f64; 3] = [-3.0, -2.5, -1.2];
 pub const ROOM_MAX: [f64; 3] = [3.0, 2.5, 1.8];
 
-/// Width of the slab at each x end that only one scan sees: the target lacks x > 3 − w, the
-/// source lacks x < −3 + w. About 1/6 of the surface each, so ~20 % of each cloud has no
-/// counterpart in the other.
+/// Width of the slab that only one scan sees: the target lacks x > 3 − w (with the +x wall),
+/// the source lacks y > 2.5 − w (with the +y wall). About 18–20 % of each cloud has no
+/// counterpart in the other, and both keep the −x and −y walls, floor and ceiling, so every
+/// degree of freedom stays observable.
 pub const ROOM_CROP_WIDTH: f64 = 0.5;
 
 /// Share of each cloud that is uniform outliers in the room volume.
@@ -104,7 +105,7 @@ pub const ROOM_OUTLIER_FRACTION: f64 = 0.03;
 ///
 /// Each cloud has `points` points: independent surface samples + N(0, σ²) per axis, plus
 /// [`ROOM_OUTLIER_FRACTION`] uniform outliers in the room volume. The target is in the world
-/// frame and lacks the +x slab; the source lacks the −x slab (see [`ROOM_CROP_WIDTH`]) and is
+/// frame and lacks the +x slab; the source lacks the +y slab (see [`ROOM_CROP_WIDTH`]) and is
 /// expressed in the source frame: source points = T⁻¹ · world points, with the fixed ground
 /// truth T = `t_target_source`.
 ///
@@ -118,8 +119,9 @@ pub fn room_scene(points: usize, noise_sigma: f64, seed: u64) -> RoomScene {
     let source_from_world = ground_truth.inverse().to_homogeneous();
 
     let x_limit = ROOM_MAX[0] - ROOM_CROP_WIDTH;
+    let y_limit = ROOM_MAX[1] - ROOM_CROP_WIDTH;
     let target = room.scan(points, &noise, &mut rng, |p| p[0] <= x_limit);
-    let source_world = room.scan(points, &noise, &mut rng, |p| p[0] >= -x_limit);
+    let source_world = room.scan(points, &noise, &mut rng, |p| p[1] <= y_limit);
     let source = source_world
         .iter()
         .map(|p| transform_point(&source_from_world, p))
@@ -510,6 +512,7 @@ mod tests {
         let scene = room_scene(points, sigma, 9);
         assert_eq!((scene.source.len(), scene.target.len()), (points, points));
         let x_limit = ROOM_MAX[0] - ROOM_CROP_WIDTH;
+        let y_limit = ROOM_MAX[1] - ROOM_CROP_WIDTH;
 
         let in_world: Vec<Point> = scene
             .source
@@ -517,7 +520,7 @@ mod tests {
             .map(|p| transform_point(&scene.t_target_source, p))
             .collect();
         let only_in_source = in_world.iter().filter(|p| p[0] > x_limit).count() as f64 / points as f64;
-        let only_in_target = scene.target.iter().filter(|p| p[0] < -x_limit).count() as f64 / points as f64;
+        let only_in_target = scene.target.iter().filter(|p| p[1] > y_limit).count() as f64 / points as f64;
         for share in [only_in_source, only_in_target] {
             assert!((0.15..0.25).contains(&share), "non-overlapping share {share}");
         }
@@ -529,7 +532,7 @@ mod tests {
 
         let overlap: Vec<Point> = in_world
             .iter()
-            .filter(|p| p[0].abs() < x_limit - 0.1)
+            .filter(|p| p[0] < x_limit - 0.1 && p[1] < y_limit - 0.1)
             .copied()
             .collect();
         let close = |queries: &[Point]| {
@@ -543,7 +546,7 @@ mod tests {
         let unaligned: Vec<Point> = scene
             .source
             .iter()
-            .filter(|p| p[0].abs() < x_limit - 0.5)
+            .filter(|p| p[0] < x_limit - 0.5 && p[1] < y_limit - 0.5)
             .copied()
             .collect();
         let misaligned = close(&unaligned);

@@ -3,8 +3,8 @@
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use sie::ffi::{
-    sie_context_free, sie_context_new, sie_context_set_histogram_mode, sie_estimate_inliers, sie_histogram_mode,
-    sie_model, sie_status,
+    sie_context_free, sie_context_new, sie_context_set_histogram_mode, sie_estimate_inliers,
+    sie_histogram_mode, sie_model, sie_status,
 };
 
 const SIGMA: f64 = 0.02;
@@ -24,7 +24,12 @@ fn residuals(seed: u64) -> (Vec<f64>, Vec<bool>) {
 }
 
 fn mean_where(values: &[f64], mask: &[bool], want: bool) -> f64 {
-    let chosen: Vec<f64> = values.iter().zip(mask).filter(|(_, m)| **m == want).map(|(v, _)| *v).collect();
+    let chosen: Vec<f64> = values
+        .iter()
+        .zip(mask)
+        .filter(|(_, m)| **m == want)
+        .map(|(v, _)| *v)
+        .collect();
     chosen.iter().sum::<f64>() / chosen.len() as f64
 }
 
@@ -57,7 +62,10 @@ fn estimate_inliers_recovers_sigma_and_separates_inliers() {
             };
             assert_eq!(status, sie_status::Ok);
             assert_eq!(count, 1);
-            let (p_in, p_out) = (mean_where(&probabilities, &inlier, true), mean_where(&probabilities, &inlier, false));
+            let (p_in, p_out) = (
+                mean_where(&probabilities, &inlier, true),
+                mean_where(&probabilities, &inlier, false),
+            );
             println!(
                 "{mode:?} seed {seed}: sigma {:.5} (true {SIGMA}), P inliers {p_in:.3}, P outliers {p_out:.3}",
                 model.sigma

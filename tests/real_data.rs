@@ -27,7 +27,12 @@ fn bunny_bun0_to_bun4_point_to_plane_from_identity() {
     assert_eq!(config.metric, Metric::PointToPlane);
     let sie = register_clouds(&source, &target, None, None, &config, None).unwrap();
     let (rot, trans) = pose_error(&sie.transform, &bunny_truth());
-    println!("SIE point-to-plane: {rot:.3} deg, {:.2} mm, {:?}, {} iterations", trans * 1e3, sie.stop_reason, sie.iterations);
+    println!(
+        "SIE point-to-plane: {rot:.3} deg, {:.2} mm, {:?}, {} iterations",
+        trans * 1e3,
+        sie.stop_reason,
+        sie.iterations
+    );
     assert_eq!(sie.stop_reason, StopReason::Converged);
     assert!(rot < 1.0 && trans < 0.005, "{rot} deg {trans} m");
 
@@ -40,7 +45,10 @@ fn bunny_bun0_to_bun4_point_to_plane_from_identity() {
     let baseline = register_clouds(&source, &target, None, None, &l2, None).unwrap();
     let (rot_l2, _) = pose_error(&baseline.transform, &bunny_truth());
     println!("L2 point-to-point: {rot_l2:.3} deg");
-    assert!(rot_l2 > 3.0, "the baseline should be visibly worse here ({rot_l2} deg)");
+    assert!(
+        rot_l2 > 3.0,
+        "the baseline should be visibly worse here ({rot_l2} deg)"
+    );
 }
 
 #[test]

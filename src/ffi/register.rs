@@ -45,9 +45,10 @@ impl<T: Coordinate> PointArray<T> {
 fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
     for (index, normal) in normals.iter().enumerate() {
         let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if (length - 1.0).abs() > NORMAL_LENGTH_TOLERANCE {
+        // An exact zero vector marks a target point without a normal: it is never matched.
+        if length != 0.0 && (length - 1.0).abs() > NORMAL_LENGTH_TOLERANCE {
             return Err(FfiError::invalid(format!(
-                "{name}[{index}] has length {length}; normals must be unit vectors"
+                "{name}[{index}] has length {length}; normals must be unit vectors (or 0 0 0 for none)"
             )));
         }
     }
@@ -234,7 +235,8 @@ pub unsafe extern "C" fn sie_context_register_d(
 /// `sie_context_register` with one unit normal per target point (float nx, ny, nz at
 /// `target_normals_stride_bytes`, 0 = packed), used by point-to-plane instead of estimating
 /// them. E.g. for a `pcl::PointCloud<pcl::PointNormal>`: `&cloud[0].normal_x` with stride 48.
-/// A normal whose length differs from 1 by more than 1e-3 is INVALID_ARGUMENT; a NaN normal is
+/// A normal whose length differs from 1 by more than 1e-3 is INVALID_ARGUMENT, except an exact
+/// 0 0 0, which marks a point without a normal (never matched); a NaN normal is
 /// NON_FINITE_INPUT.
 ///
 /// # Safety

@@ -604,8 +604,30 @@ fn failed_registration_keeps_outputs_and_drops_the_previous_result() {
     assert_eq!(status, sie_status::TooFewPoints);
     assert_eq!(ctx.last_error(), "count is 0");
 
-    let normals = vec![0.0f32; 3 * 30];
+    let mut normals = vec![0.0f32; 3 * 30];
     xyz[3 * 17] = 0.0;
+    let register_with = |normals: &[f32], out_t: &mut [f64; 16]| unsafe {
+        sie_context_register_with_normals(
+            ctx.0,
+            xyz.as_ptr(),
+            30,
+            0,
+            xyz.as_ptr(),
+            30,
+            0,
+            normals.as_ptr(),
+            0,
+            null(),
+            out_t.as_mut_ptr(),
+        )
+    };
+    assert_eq!(register_with(&normals, &mut out_t), sie_status::InvalidArgument);
+    assert!(
+        ctx.last_error().contains("every target normal is 0 0 0"),
+        "{}",
+        ctx.last_error()
+    );
+    normals[2] = 0.5;
     let status = unsafe {
         sie_context_register_with_normals(
             ctx.0,
@@ -623,7 +645,7 @@ fn failed_registration_keeps_outputs_and_drops_the_previous_result() {
     };
     assert_eq!(status, sie_status::InvalidArgument);
     assert!(
-        ctx.last_error().contains("target_normals[0] has length 0"),
+        ctx.last_error().contains("target_normals[0] has length 0.5"),
         "{}",
         ctx.last_error()
     );

@@ -3,7 +3,9 @@
 use nalgebra::Matrix4;
 
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
-use super::{Error, InlierEstimate, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry};
+use super::{
+    Error, InlierEstimate, Metric, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
+};
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::{rotation_part, transform_change};
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
@@ -70,6 +72,12 @@ pub fn register_clouds(
             )));
         }
         require_finite("target normals", normals)?;
+        if config.metric == Metric::PointToPlane && normals.iter().all(|n| *n == [0.0; 3]) {
+            return Err(Error::InvalidArgument(
+                "every target normal is 0 0 0; point-to-plane needs normals (or pass none to estimate them)"
+                    .into(),
+            ));
+        }
     }
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;

@@ -178,9 +178,11 @@ impl HistogramModel {
         let capped = (bins as f64 / wanted.max(1) as f64).min(1.0);
         // When the bin floor binds, bins hold fewer than data_per_bin samples; widen the kernel
         // until it averages about data_per_bin samples, so the peak height α stays as precise
-        // as the paper's sample-variance argument intends.
+        // as the paper's sample-variance argument intends. At the mirrored edge of a |r|
+        // histogram (where its peak is) the kernel sees one side only: ask for twice as many.
         let per_bin = inside.max(1) as f64 / bins as f64;
-        let sparse = options.data_per_bin / ((2.0 * std::f64::consts::PI).sqrt() * per_bin);
+        let one_sided = if pooled { 2.0 } else { 1.0 };
+        let sparse = one_sided * options.data_per_bin / ((2.0 * std::f64::consts::PI).sqrt() * per_bin);
         let std_bins = (options.smoothing * bins as f64 * capped).max(sparse);
         smooth(&self.counts, &mut self.smoothed, std_bins, pooled);
     }

@@ -15,8 +15,15 @@ pub fn data_dir() -> Option<PathBuf> {
     if dir.is_dir() {
         return Some(dir);
     }
-    assert!(std::env::var_os("CI").is_none(), "data folder {} not found under CI", dir.display());
-    eprintln!("skipping: data folder {} not found (set SIE_DATA_DIR)", dir.display());
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "data folder {} not found under CI",
+        dir.display()
+    );
+    eprintln!(
+        "skipping: data folder {} not found (set SIE_DATA_DIR)",
+        dir.display()
+    );
     None
 }
 

@@ -1,0 +1,422 @@
+//! Registration through the Rust API: noise normalisation, callbacks, baselines, result
+//! contents, stop reasons and input errors.
+use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, Normal};
+use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
+use sie::synthetic::{paper_simulation, room_scene};
+use sie::{
+    CloudRole, CostFunction, Error, HistogramMode, Metric, NoiseModel, NoiseScales, NoiseShape, Point,
+    RegistrationConfig, StopReason, register_clouds, register_correspondences,
+};
+
+fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
+    let d = truth.try_inverse().unwrap() * estimate;
+    (rotation_angle(&rotation_part(&d)), translation_part(&d).norm())
+}
+
+fn small_motion() -> Matrix4<f64> {
+    Translation3::new(0.1, -0.05, 0.08).to_homogeneous()
+        * Rotation3::from_euler_angles(0.05, -0.03, 0.08).to_homogeneous()
+}
+
+/// Depth-camera-like pairs: points at depth z ∈ [0.5, 4] m with noise c·z² on each side
+/// (§4.4, §6), plus uniform outliers. Returns (source, target, is_inlier, T_target_source).
+fn depth_pairs(seed: u64, c: f64) -> (Vec<Point>, Vec<Point>, Vec<bool>, Matrix4<f64>) {
+    let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(seed);
+    let unit = Normal::new(0.0, 1.0).unwrap();
+    let truth = small_motion();
+    let inverse = truth.try_inverse().unwrap();
+    let (mut source, mut target, mut inlier) = (Vec::new(), Vec::new(), Vec::new());
+    for i in 0..3000 {
+        let world: Point = [
+            rng.random_range(-1.5..1.5),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(0.5..4.0),
+        ];
+        let mut s = transform_point(&inverse, &world);
+        let mut t = world;
+        if i < 2400 {
+            for k in 0..3 {
+                s[k] += c * s[2] * s[2] * unit.sample(&mut rng);
+                t[k] += c * t[2] * t[2] * unit.sample(&mut rng);
+            }
+            inlier.push(true);
+        } else {
+            for v in t.iter_mut() {
+                *v += rng.random_range(-0.5..0.5);
+            }
+            inlier.push(false);
+        }
+        source.push(s);
+        target.push(t);
+    }
+    (source, target, inlier, truth)
+}
+
+#[test]
+fn quadratic_depth_noise_model_normalises_sigma_and_improves_accuracy() {
+    let c = 0.002;
+    let (mut better, mut trials) = (0, 0);
+    for seed in 0..6 {
+        let (source, target, _, truth) = depth_pairs(seed, c);
+        let constant =
+            register_correspondences(&source, &target, None, &RegistrationConfig::default(), None).unwrap();
+        let config = RegistrationConfig {
+            noise: NoiseModel::QuadraticDepth,
+            ..RegistrationConfig::default()
+        };
+        let quadratic = register_correspondences(&source, &target, None, &config, None).unwrap();
+        assert_eq!(quadratic.stop_reason, StopReason::Converged);
+        // Normalised residual = r / sqrt(z_s⁴ + z_t⁴): its σ per axis is c.
+        let sigma = quadratic.sigma[0];
+        assert!(
+            (sigma - c).abs() < 0.15 * c,
+            "seed {seed}: normalised sigma {sigma}, expected {c}"
+        );
+        let (r_q, t_q) = pose_error(&quadratic.transform, &truth);
+        let (r_c, t_c) = pose_error(&constant.transform, &truth);
+        trials += 1;
+        if r_q + t_q < r_c + t_c {
+            better += 1;
+        }
+        assert!(t_q < 0.01 && r_q < 0.01, "seed {seed}: {r_q} rad {t_q} m");
+    }
+    // Weighting by the right noise model is the maximum-likelihood estimate: better on most.
+    assert!(better * 3 >= trials * 2, "quadratic better on {better}/{trials}");
+}
+
+/// The same quadratic model as the built-in one, supplied as a callback.
+struct DepthSquared {
+    calls: Vec<(CloudRole, usize)>,
+}
+
+impl NoiseScales for DepthSquared {
+    fn point_sigmas(&mut self, cloud: CloudRole, points: &[Point], out: &mut [f64]) -> Result<(), String> {
+        self.calls.push((cloud, points.len()));
+        for (o, p) in out.iter_mut().zip(points) {
+            *o = (p[2] * p[2]).max(1e-6);
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn noise_callback_is_called_once_per_cloud_and_matches_the_builtin_model() {
+    let (source, target, _, _) = depth_pairs(3, 0.002);
+    let builtin = RegistrationConfig {
+        noise: NoiseModel::QuadraticDepth,
+        ..RegistrationConfig::default()
+    };
+    let expected = register_correspondences(&source, &target, None, &builtin, None).unwrap();
+    let mut callback = DepthSquared { calls: Vec::new() };
+    let got = register_correspondences(
+        &source,
+        &target,
+        None,
+        &RegistrationConfig::default(),
+        Some(&mut callback),
+    )
+    .unwrap();
+    assert_eq!(
+        callback.calls,
+        vec![
+            (CloudRole::Source, source.len()),
+            (CloudRole::Target, target.len())
+        ]
+    );
+    assert_eq!(got.transform, expected.transform);
+    assert_eq!(got.probabilities, expected.probabilities);
+}
+
+#[test]
+fn failing_or_invalid_callbacks_are_reported() {
+    struct Failing;
+    impl NoiseScales for Failing {
+        fn point_sigmas(&mut self, _: CloudRole, _: &[Point], _: &mut [f64]) -> Result<(), String> {
+            Err("sensor model unavailable".into())
+        }
+    }
+    struct Negative;
+    impl NoiseScales for Negative {
+        fn point_sigmas(&mut self, _: CloudRole, _: &[Point], out: &mut [f64]) -> Result<(), String> {
+            out.fill(-1.0);
+            Ok(())
+        }
+    }
+    let data = paper_simulation(100, 10, 0.01, &Matrix4::identity(), 1);
+    let config = RegistrationConfig::default();
+    let e =
+        register_correspondences(&data.source, &data.target, None, &config, Some(&mut Failing)).unwrap_err();
+    assert_eq!(e, Error::Callback("sensor model unavailable".into()));
+    let e =
+        register_correspondences(&data.source, &data.target, None, &config, Some(&mut Negative)).unwrap_err();
+    assert!(
+        matches!(&e, Error::Callback(m) if m.contains("source point 0")),
+        "{e}"
+    );
+}
+
+#[test]
+fn probabilities_separate_known_inliers_from_outliers() {
+    let t0 = Translation3::new(0.3, 0.0, 0.0).to_homogeneous();
+    let data = paper_simulation(1000, 1000, 0.01, &t0, 5);
+    let result = register_correspondences(
+        &data.source,
+        &data.target,
+        None,
+        &RegistrationConfig::default(),
+        None,
+    )
+    .unwrap();
+    let n = data.source.len();
+    assert_eq!(result.probabilities.len(), n);
+    assert_eq!(result.correspondences, (0..n as i64).collect::<Vec<_>>());
+    assert!(result.probabilities.iter().all(|p| (0.0..=1.0).contains(p)));
+    let mean = |want: bool| {
+        let v: Vec<f64> = result
+            .probabilities
+            .iter()
+            .zip(&data.is_inlier)
+            .filter(|(_, i)| **i == want)
+            .map(|(p, _)| *p)
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    assert!(mean(true) > 0.9, "inliers {}", mean(true));
+    assert!(mean(false) < 0.1, "outliers {}", mean(false));
+    // σ of the pooled per-axis residuals is the simulated 0.01.
+    assert!(
+        (result.sigma[0] - 0.01).abs() < 0.001,
+        "sigma {}",
+        result.sigma[0]
+    );
+    assert!((result.inlier_fraction - 0.5).abs() < 0.05);
+    assert!(result.beta[0] < 0.01 * result.sigma[0] + 1e-12);
+    // The last histogram and model are reported for plotting.
+    let h = &result.histograms[0];
+    assert!(h.bins() >= 50 && h.counts.len() == h.probability.len());
+}
+
+#[test]
+fn per_column_histograms_and_estimated_shape_also_register() {
+    let t0 = Rotation3::from_axis_angle(&Vector3::z_axis(), 0.8).to_homogeneous();
+    for sie in [
+        sie::SieOptions {
+            histogram: HistogramMode::PerColumn,
+            ..Default::default()
+        },
+        sie::SieOptions {
+            shape: NoiseShape::Estimated,
+            ..Default::default()
+        },
+        sie::SieOptions {
+            shape: NoiseShape::Fixed(1.0),
+            ..Default::default()
+        },
+    ] {
+        let config = RegistrationConfig {
+            sie: sie.clone(),
+            ..RegistrationConfig::default()
+        };
+        let data = paper_simulation(1000, 500, 0.01, &t0, 9);
+        let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+        let (rot, trans) = pose_error(&result.transform, &t0.try_inverse().unwrap());
+        assert!(rot < 2e-3 && trans < 2e-3, "{sie:?}: {rot} rad, {trans}");
+        if sie.histogram == HistogramMode::PerColumn {
+            assert_eq!(result.sigma.len(), 3);
+        }
+        if sie.shape == NoiseShape::Estimated {
+            // Gaussian noise: the estimated exponent is near 2.
+            assert!((result.noise_shape - 2.0).abs() < 0.5, "p {}", result.noise_shape);
+        }
+    }
+}
+
+#[test]
+fn every_baseline_runs_through_the_same_irls() {
+    // No outliers, small motion: every cost function must find the transform.
+    let truth = small_motion();
+    let data = paper_simulation(500, 0, 0.005, &truth.try_inverse().unwrap(), 2);
+    for cost in [
+        CostFunction::L2,
+        CostFunction::TruncatedL2 { threshold: 1.0 },
+        CostFunction::Lp { p: 1.0 },
+        CostFunction::Lp { p: 0.1 },
+        CostFunction::StudentT { dof: 5.0 },
+        CostFunction::Huber { scale: 0.01 },
+        CostFunction::Cauchy { scale: 0.01 },
+        CostFunction::GemanMcClure { scale: 0.05 },
+        CostFunction::Tukey { scale: 0.5 },
+    ] {
+        let config = RegistrationConfig {
+            cost,
+            ..RegistrationConfig::default()
+        };
+        let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+        let (rot, trans) = pose_error(&result.transform, &truth);
+        assert!(rot < 2e-3 && trans < 2e-3, "{cost:?}: {rot} rad {trans}");
+        assert!(
+            result.probabilities.iter().all(|p| (0.0..=1.0).contains(p)),
+            "{cost:?}"
+        );
+        assert!(result.histograms.is_empty());
+    }
+}
+
+#[test]
+fn iteration_cap_and_trace_are_reported_honestly() {
+    let data = paper_simulation(
+        1000,
+        500,
+        0.01,
+        &Translation3::new(0.5, 0.0, 0.0).to_homogeneous(),
+        4,
+    );
+    let config = RegistrationConfig {
+        max_iterations: 3,
+        record_trace: true,
+        ..RegistrationConfig::default()
+    };
+    let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+    assert_eq!(result.stop_reason, StopReason::IterationLimit);
+    assert!(!result.converged);
+    assert_eq!(result.iterations, 3);
+    assert_eq!(result.trace.len(), 3);
+    assert!(result.trace.iter().all(|t| t.annealing));
+    assert_eq!(result.trace[0].iteration, 1);
+    // β starts at the RMS of the initial residuals and only shrinks.
+    assert!(result.trace.windows(2).all(|w| w[1].beta <= w[0].beta));
+}
+
+#[test]
+fn bad_inputs_are_errors_not_panics() {
+    let config = RegistrationConfig::default();
+    let p: Vec<Point> = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let e = register_correspondences(&p, &p[..3], None, &config, None).unwrap_err();
+    assert!(matches!(e, Error::InvalidArgument(_)));
+    let e = register_correspondences(&p[..2], &p[..2], None, &config, None).unwrap_err();
+    assert!(matches!(e, Error::TooFewPoints(_)));
+    let mut nan = p.clone();
+    nan[2][1] = f64::NAN;
+    let e = register_clouds(&p, &nan, None, None, &config, None).unwrap_err();
+    assert!(
+        matches!(&e, Error::NonFinite(m) if m.contains("target[2]")),
+        "{e}"
+    );
+    let mut not_rigid = Matrix4::identity();
+    not_rigid[(0, 0)] = 2.0;
+    let e = register_clouds(&p, &p, None, Some(&not_rigid), &config, None).unwrap_err();
+    assert!(matches!(e, Error::InvalidArgument(_)));
+    let bad = RegistrationConfig {
+        cost: CostFunction::Huber { scale: -1.0 },
+        ..RegistrationConfig::default()
+    };
+    assert!(matches!(
+        register_clouds(&p, &p, None, None, &bad, None),
+        Err(Error::InvalidArgument(_))
+    ));
+    let wrong_normals = vec![[0.0, 0.0, 1.0]; 3];
+    let e = register_clouds(&p, &p, Some(&wrong_normals), None, &config, None).unwrap_err();
+    assert!(matches!(e, Error::InvalidArgument(_)));
+}
+
+#[test]
+fn icp_on_a_room_scene_point_to_plane_and_point_to_point() {
+    let scene = room_scene(20_000, 0.01, 3);
+    for metric in [Metric::PointToPlane, Metric::PointToPoint] {
+        let config = RegistrationConfig {
+            metric,
+            ..RegistrationConfig::default()
+        };
+        let result = register_clouds(&scene.source, &scene.target, None, None, &config, None).unwrap();
+        let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
+        assert!(
+            rot.to_degrees() < 0.2 && trans < 0.01,
+            "{metric:?}: {} deg {trans} m",
+            rot.to_degrees()
+        );
+        assert_eq!(result.probabilities.len(), scene.source.len());
+        let matched = result.correspondences.iter().filter(|&&c| c >= 0).count();
+        assert!(matched > scene.source.len() / 2);
+        assert!(
+            result
+                .correspondences
+                .iter()
+                .all(|&c| c < scene.target.len() as i64)
+        );
+    }
+}
+
+#[test]
+fn icp_results_do_not_depend_on_the_thread_count_and_sampling_still_converges() {
+    let scene = room_scene(10_000, 0.01, 4);
+    let run = |threads: usize, max_correspondences: usize| {
+        let config = RegistrationConfig {
+            threads,
+            max_correspondences,
+            ..RegistrationConfig::default()
+        };
+        register_clouds(&scene.source, &scene.target, None, None, &config, None).unwrap()
+    };
+    let one = run(1, 0);
+    let two = run(2, 0);
+    assert_eq!(one.transform, two.transform);
+    assert_eq!(one.probabilities, two.probabilities);
+    let sampled = run(2, 2000);
+    let (rot, trans) = pose_error(&sampled.transform, &scene.t_target_source);
+    assert!(
+        rot.to_degrees() < 0.3 && trans < 0.015,
+        "{} deg {trans} m",
+        rot.to_degrees()
+    );
+    // Probabilities are reported for every source point, not only the sampled ones.
+    let matched = sampled.correspondences.iter().filter(|&&c| c >= 0).count();
+    assert!(matched > 5000, "{matched}");
+}
+
+#[test]
+fn few_correspondences_do_not_collapse_sigma() {
+    // 200 pairs, every 5th an outlier: ~480 inlier residual components, below the 50-bin floor's
+    // 40 samples per bin. σ must stay near the noise and the registration must not end degenerate.
+    let truth = Translation3::new(0.3, -0.2, 0.5).to_homogeneous()
+        * Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, 3.0)), 0.4)
+            .to_homogeneous();
+    for seed in 0..10 {
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.005).unwrap();
+        let (mut source, mut target) = (Vec::new(), Vec::new());
+        for i in 0..200 {
+            let p: Point = [
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            ];
+            let mut q = transform_point(&truth, &p);
+            for v in q.iter_mut() {
+                *v = if i % 5 == 0 {
+                    rng.random_range(-2.0..2.0)
+                } else {
+                    *v + noise.sample(&mut rng)
+                };
+            }
+            source.push(p);
+            target.push(q);
+        }
+        let result =
+            register_correspondences(&source, &target, None, &RegistrationConfig::default(), None).unwrap();
+        let (rot, trans) = pose_error(&result.transform, &truth);
+        assert_ne!(result.stop_reason, StopReason::Degenerate, "seed {seed}");
+        assert!(rot < 0.005 && trans < 0.005, "seed {seed}: {rot} rad {trans}");
+        assert!(
+            result.sigma[0] > 0.0025 && result.sigma[0] < 0.0075,
+            "seed {seed}: sigma {}",
+            result.sigma[0]
+        );
+        assert!(
+            (result.inlier_fraction - 0.8).abs() < 0.1,
+            "seed {seed}: {}",
+            result.inlier_fraction
+        );
+    }
+}
