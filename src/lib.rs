@@ -5,6 +5,20 @@
 //! * [`sie`]: the estimator on any residual matrix.
 //! * [`registration`]: rigid registration from correspondences or ICP on two clouds.
 //! * [`ffi`]: the C ABI (the only place with `unsafe`).
+//!
+//! ```
+//! use sie::synthetic::room_scene;
+//! use sie::{RegistrationConfig, StopReason, register_clouds};
+//!
+//! // Two noisy, partially overlapping scans of a room, 7° and 0.2 m apart.
+//! let scene = room_scene(5_000, 0.01, 1);
+//! let result = register_clouds(&scene.source, &scene.target, None, None, &RegistrationConfig::default(), None)?;
+//! assert_eq!(result.stop_reason, StopReason::Converged);
+//! // p_target = T · p_source; compare with the known transform.
+//! let error = (result.transform - scene.t_target_source).abs().max();
+//! assert!(error < 0.01, "{error}");
+//! # Ok::<(), sie::Error>(())
+//! ```
 pub mod cost;
 pub mod ffi;
 pub mod geometry;
