@@ -258,6 +258,10 @@ enum sie_stop_reason
      * collinear points); the transform is the best constrained estimate reached.
      */
     SIE_STOP_REASON_DEGENERATE = 3,
+    /**
+     * The caller cancelled; the transform is the one reached so far.
+     */
+    SIE_STOP_REASON_CANCELLED = 4,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

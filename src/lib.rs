@@ -8,11 +8,11 @@
 //!
 //! ```
 //! use sie::synthetic::room_scene;
-//! use sie::{RegistrationConfig, StopReason, register_clouds};
+//! use sie::{Hooks, RegistrationConfig, StopReason, register_clouds};
 //!
 //! // Two noisy, partially overlapping scans of a room, 7° and 0.2 m apart.
 //! let scene = room_scene(5_000, 0.01, 1);
-//! let result = register_clouds(&scene.source, &scene.target, None, None, &RegistrationConfig::default(), None)?;
+//! let result = register_clouds(&scene.source, &scene.target, None, None, &RegistrationConfig::default(), Hooks::default())?;
 //! assert_eq!(result.stop_reason, StopReason::Converged);
 //! // p_target = T · p_source; compare with the known transform.
 //! let error = (result.transform - scene.t_target_source).abs().max();
@@ -35,7 +35,7 @@ pub mod synthetic;
 pub use cost::CostFunction;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use registration::{
-    Error, InlierEstimate, Metric, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
-    estimate_inliers, register_clouds, register_correspondences,
+    Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
+    StopReason, TraceEntry, estimate_inliers, register_clouds, register_correspondences,
 };
 pub use sie::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieEstimator, SieOptions};

@@ -9,7 +9,7 @@ use std::time::Instant;
 use clap::{Parser, Subcommand, ValueEnum};
 use nalgebra::Matrix4;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
-use sie::{CostFunction, Metric, RegistrationConfig, RegistrationResult, StopReason, register_clouds};
+use sie::{CostFunction, Hooks, Metric, RegistrationConfig, RegistrationResult, StopReason, register_clouds};
 
 #[derive(Parser)]
 #[command(
@@ -73,6 +73,7 @@ fn stop_name(result: &RegistrationResult) -> &'static str {
         StopReason::Converged => "converged",
         StopReason::IterationLimit => "iter-limit",
         StopReason::Degenerate => "degenerate",
+        StopReason::Cancelled => "cancelled",
     }
 }
 
@@ -117,8 +118,15 @@ fn demo(points: usize, noise: f64, seed: u64, metric: Metric, threads: usize) ->
             ..RegistrationConfig::default()
         };
         let start = Instant::now();
-        let result = register_clouds(&scene.source, &scene.target, None, None, &config, None)
-            .map_err(|e| format!("{name}: {e}"))?;
+        let result = register_clouds(
+            &scene.source,
+            &scene.target,
+            None,
+            None,
+            &config,
+            Hooks::default(),
+        )
+        .map_err(|e| format!("{name}: {e}"))?;
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
         let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
         // SIE's σ is estimated; the baselines' scale is what they were given (L2 has none).

@@ -6,7 +6,7 @@ use rand_distr::{Distribution, Normal};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
-    CloudRole, CostFunction, Error, HistogramMode, Metric, NoiseModel, NoiseScales, NoiseShape, Point,
+    CloudRole, CostFunction, Error, HistogramMode, Hooks, Metric, NoiseModel, NoiseScales, NoiseShape, Point,
     RegistrationConfig, StopReason, register_clouds, register_correspondences,
 };
 
@@ -60,13 +60,19 @@ fn quadratic_depth_noise_model_normalises_sigma_and_improves_accuracy() {
     let (mut better, mut trials) = (0, 0);
     for seed in 0..6 {
         let (source, target, _, truth) = depth_pairs(seed, c);
-        let constant =
-            register_correspondences(&source, &target, None, &RegistrationConfig::default(), None).unwrap();
+        let constant = register_correspondences(
+            &source,
+            &target,
+            None,
+            &RegistrationConfig::default(),
+            Hooks::default(),
+        )
+        .unwrap();
         let config = RegistrationConfig {
             noise: NoiseModel::QuadraticDepth,
             ..RegistrationConfig::default()
         };
-        let quadratic = register_correspondences(&source, &target, None, &config, None).unwrap();
+        let quadratic = register_correspondences(&source, &target, None, &config, Hooks::default()).unwrap();
         assert_eq!(quadratic.stop_reason, StopReason::Converged);
         // Normalised residual = r / sqrt(z_s⁴ + z_t⁴): its σ per axis is c.
         let sigma = quadratic.sigma[0];
@@ -108,14 +114,14 @@ fn noise_callback_is_called_once_per_cloud_and_matches_the_builtin_model() {
         noise: NoiseModel::QuadraticDepth,
         ..RegistrationConfig::default()
     };
-    let expected = register_correspondences(&source, &target, None, &builtin, None).unwrap();
+    let expected = register_correspondences(&source, &target, None, &builtin, Hooks::default()).unwrap();
     let mut callback = DepthSquared { calls: Vec::new() };
     let got = register_correspondences(
         &source,
         &target,
         None,
         &RegistrationConfig::default(),
-        Some(&mut callback),
+        Hooks::noise(Some(&mut callback)),
     )
     .unwrap();
     assert_eq!(
@@ -146,11 +152,23 @@ fn failing_or_invalid_callbacks_are_reported() {
     }
     let data = paper_simulation(100, 10, 0.01, &Matrix4::identity(), 1);
     let config = RegistrationConfig::default();
-    let e =
-        register_correspondences(&data.source, &data.target, None, &config, Some(&mut Failing)).unwrap_err();
+    let e = register_correspondences(
+        &data.source,
+        &data.target,
+        None,
+        &config,
+        Hooks::noise(Some(&mut Failing)),
+    )
+    .unwrap_err();
     assert_eq!(e, Error::Callback("sensor model unavailable".into()));
-    let e =
-        register_correspondences(&data.source, &data.target, None, &config, Some(&mut Negative)).unwrap_err();
+    let e = register_correspondences(
+        &data.source,
+        &data.target,
+        None,
+        &config,
+        Hooks::noise(Some(&mut Negative)),
+    )
+    .unwrap_err();
     assert!(
         matches!(&e, Error::Callback(m) if m.contains("source point 0")),
         "{e}"
@@ -166,7 +184,7 @@ fn probabilities_separate_known_inliers_from_outliers() {
         &data.target,
         None,
         &RegistrationConfig::default(),
-        None,
+        Hooks::default(),
     )
     .unwrap();
     let n = data.source.len();
@@ -220,7 +238,8 @@ fn per_column_histograms_and_estimated_shape_also_register() {
             ..RegistrationConfig::default()
         };
         let data = paper_simulation(1000, 500, 0.01, &t0, 9);
-        let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+        let result =
+            register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
         let (rot, trans) = pose_error(&result.transform, &t0.try_inverse().unwrap());
         assert!(rot < 2e-3 && trans < 2e-3, "{sie:?}: {rot} rad, {trans}");
         if sie.histogram == HistogramMode::PerColumn {
@@ -253,7 +272,8 @@ fn every_baseline_runs_through_the_same_irls() {
             cost,
             ..RegistrationConfig::default()
         };
-        let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+        let result =
+            register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
         let (rot, trans) = pose_error(&result.transform, &truth);
         assert!(rot < 2e-3 && trans < 2e-3, "{cost:?}: {rot} rad {trans}");
         assert!(
@@ -278,7 +298,8 @@ fn iteration_cap_and_trace_are_reported_honestly() {
         record_trace: true,
         ..RegistrationConfig::default()
     };
-    let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+    let result =
+        register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
     assert_eq!(result.stop_reason, StopReason::IterationLimit);
     assert!(!result.converged);
     assert_eq!(result.iterations, 3);
@@ -293,31 +314,31 @@ fn iteration_cap_and_trace_are_reported_honestly() {
 fn bad_inputs_are_errors_not_panics() {
     let config = RegistrationConfig::default();
     let p: Vec<Point> = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let e = register_correspondences(&p, &p[..3], None, &config, None).unwrap_err();
+    let e = register_correspondences(&p, &p[..3], None, &config, Hooks::default()).unwrap_err();
     assert!(matches!(e, Error::InvalidArgument(_)));
-    let e = register_correspondences(&p[..2], &p[..2], None, &config, None).unwrap_err();
+    let e = register_correspondences(&p[..2], &p[..2], None, &config, Hooks::default()).unwrap_err();
     assert!(matches!(e, Error::TooFewPoints(_)));
     let mut nan = p.clone();
     nan[2][1] = f64::NAN;
-    let e = register_clouds(&p, &nan, None, None, &config, None).unwrap_err();
+    let e = register_clouds(&p, &nan, None, None, &config, Hooks::default()).unwrap_err();
     assert!(
         matches!(&e, Error::NonFinite(m) if m.contains("target[2]")),
         "{e}"
     );
     let mut not_rigid = Matrix4::identity();
     not_rigid[(0, 0)] = 2.0;
-    let e = register_clouds(&p, &p, None, Some(&not_rigid), &config, None).unwrap_err();
+    let e = register_clouds(&p, &p, None, Some(&not_rigid), &config, Hooks::default()).unwrap_err();
     assert!(matches!(e, Error::InvalidArgument(_)));
     let bad = RegistrationConfig {
         cost: CostFunction::Huber { scale: -1.0 },
         ..RegistrationConfig::default()
     };
     assert!(matches!(
-        register_clouds(&p, &p, None, None, &bad, None),
+        register_clouds(&p, &p, None, None, &bad, Hooks::default()),
         Err(Error::InvalidArgument(_))
     ));
     let wrong_normals = vec![[0.0, 0.0, 1.0]; 3];
-    let e = register_clouds(&p, &p, Some(&wrong_normals), None, &config, None).unwrap_err();
+    let e = register_clouds(&p, &p, Some(&wrong_normals), None, &config, Hooks::default()).unwrap_err();
     assert!(matches!(e, Error::InvalidArgument(_)));
 }
 
@@ -329,7 +350,15 @@ fn icp_on_a_room_scene_point_to_plane_and_point_to_point() {
             metric,
             ..RegistrationConfig::default()
         };
-        let result = register_clouds(&scene.source, &scene.target, None, None, &config, None).unwrap();
+        let result = register_clouds(
+            &scene.source,
+            &scene.target,
+            None,
+            None,
+            &config,
+            Hooks::default(),
+        )
+        .unwrap();
         let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
         assert!(
             rot.to_degrees() < 0.2 && trans < 0.01,
@@ -357,7 +386,15 @@ fn icp_results_do_not_depend_on_the_thread_count_and_sampling_still_converges() 
             max_correspondences,
             ..RegistrationConfig::default()
         };
-        register_clouds(&scene.source, &scene.target, None, None, &config, None).unwrap()
+        register_clouds(
+            &scene.source,
+            &scene.target,
+            None,
+            None,
+            &config,
+            Hooks::default(),
+        )
+        .unwrap()
     };
     let one = run(1, 0);
     let two = run(2, 0);
@@ -403,8 +440,14 @@ fn few_correspondences_do_not_collapse_sigma() {
             source.push(p);
             target.push(q);
         }
-        let result =
-            register_correspondences(&source, &target, None, &RegistrationConfig::default(), None).unwrap();
+        let result = register_correspondences(
+            &source,
+            &target,
+            None,
+            &RegistrationConfig::default(),
+            Hooks::default(),
+        )
+        .unwrap();
         let (rot, trans) = pose_error(&result.transform, &truth);
         assert_ne!(result.stop_reason, StopReason::Degenerate, "seed {seed}");
         assert!(rot < 0.005 && trans < 0.005, "seed {seed}: {rot} rad {trans}");
@@ -419,4 +462,54 @@ fn few_correspondences_do_not_collapse_sigma() {
             result.inlier_fraction
         );
     }
+}
+
+#[test]
+fn observer_sees_every_iteration_and_can_cancel() {
+    let t0 = Translation3::new(0.5, 0.0, 0.0).to_homogeneous();
+    let data = paper_simulation(1000, 500, 0.01, &t0, 8);
+    let config = RegistrationConfig::default();
+    let mut seen = Vec::new();
+    let mut observe = |entry: &sie::TraceEntry| {
+        seen.push(entry.iteration);
+        if entry.iteration == 4 {
+            std::ops::ControlFlow::Break(())
+        } else {
+            std::ops::ControlFlow::Continue(())
+        }
+    };
+    let hooks = Hooks {
+        noise: None,
+        observer: Some(&mut observe),
+    };
+    let result = register_correspondences(&data.source, &data.target, None, &config, hooks).unwrap();
+    assert_eq!(seen, vec![1, 2, 3, 4]);
+    assert_eq!(result.stop_reason, StopReason::Cancelled);
+    assert!(!result.converged);
+    assert_eq!(result.iterations, 4);
+    // The best transform so far has moved most of the way from the identity start.
+    let (_, trans) = pose_error(&result.transform, &t0.try_inverse().unwrap());
+    assert!(trans < 0.25, "{trans}");
+    assert_eq!(result.probabilities.len(), data.source.len());
+    // Without cancelling, the observer sees the whole run and the result is unchanged by it.
+    let mut count = 0;
+    let mut counting = |_: &sie::TraceEntry| {
+        count += 1;
+        std::ops::ControlFlow::Continue(())
+    };
+    let observed = register_correspondences(
+        &data.source,
+        &data.target,
+        None,
+        &config,
+        Hooks {
+            noise: None,
+            observer: Some(&mut counting),
+        },
+    )
+    .unwrap();
+    let plain =
+        register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
+    assert_eq!(count, observed.iterations);
+    assert_eq!(observed.transform, plain.transform);
 }

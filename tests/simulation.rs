@@ -5,7 +5,7 @@
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use sie::geometry::{transform_point, weighted_rigid_fit};
 use sie::synthetic::{Correspondences, paper_simulation};
-use sie::{CostFunction, RegistrationConfig, StopReason, register_correspondences};
+use sie::{CostFunction, Hooks, RegistrationConfig, StopReason, register_correspondences};
 
 const NOISE: f64 = 0.01;
 const INSTANCES: u64 = 20;
@@ -67,7 +67,8 @@ fn run(t0: &Matrix4<f64>, cost: CostFunction) -> Outcome {
     };
     for seed in 0..INSTANCES {
         let data = paper_simulation(1000, 1000, NOISE, t0, 1000 + seed);
-        let result = register_correspondences(&data.source, &data.target, None, &config, None).unwrap();
+        let result =
+            register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
         let error = excess_error(&data, &result.transform);
         if result.stop_reason == StopReason::Converged && error < 1e-4 {
             outcome.converged_and_accurate += 1;

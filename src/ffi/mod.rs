@@ -133,6 +133,8 @@ pub enum sie_stop_reason {
     /// No unique solution (no weighted correspondence, or a rank-deficient system such as
     /// collinear points); the transform is the best constrained estimate reached.
     Degenerate = 3,
+    /// The caller cancelled; the transform is the one reached so far.
+    Cancelled = 4,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).

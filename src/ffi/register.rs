@@ -112,7 +112,7 @@ unsafe fn register_clouds_from<T: Coordinate>(
                     normals.as_deref(),
                     init.as_ref(),
                     config,
-                    noise,
+                    crate::registration::Hooks::noise(noise),
                 )
             })
         }
@@ -145,7 +145,7 @@ unsafe fn register_correspondences_from<T: Coordinate>(
                     &target_points,
                     init.as_ref(),
                     config,
-                    noise,
+                    crate::registration::Hooks::noise(noise),
                 )
             })
         }

@@ -32,6 +32,7 @@ fn summary_of(result: &RegistrationResult) -> sie_summary {
         StopReason::Converged => sie_stop_reason::Converged,
         StopReason::IterationLimit => sie_stop_reason::IterationLimit,
         StopReason::Degenerate => sie_stop_reason::Degenerate,
+        StopReason::Cancelled => sie_stop_reason::Cancelled,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

@@ -4,7 +4,8 @@ use nalgebra::Matrix4;
 
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
 use super::{
-    Error, InlierEstimate, Metric, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
+    Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
+    StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::{rotation_part, transform_change};
@@ -28,7 +29,7 @@ pub fn register_correspondences(
     target: &[Point],
     init: Option<&Matrix4<f64>>,
     config: &RegistrationConfig,
-    noise: Option<&mut dyn NoiseScales>,
+    hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
     config.validate()?;
     if source.len() != target.len() {
@@ -42,9 +43,9 @@ pub fn register_correspondences(
     require_finite("source", source)?;
     require_finite("target", target)?;
     let init = checked_initial_guess(init)?;
-    let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;
+    let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
-    run(&mut problem, init, config)
+    run(&mut problem, init, config, hooks.observer)
 }
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
@@ -56,7 +57,7 @@ pub fn register_clouds(
     target_normals: Option<&[Point]>,
     init: Option<&Matrix4<f64>>,
     config: &RegistrationConfig,
-    noise: Option<&mut dyn NoiseScales>,
+    hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
     config.validate()?;
     require_points("source", source.len(), 3)?;
@@ -80,7 +81,7 @@ pub fn register_clouds(
         }
     }
     let init = checked_initial_guess(init)?;
-    let (source_sigma, target_sigma) = noise_sigmas(config, noise, source, target)?;
+    let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
     let mut problem = CloudProblem::new(
         source,
@@ -92,7 +93,7 @@ pub fn register_clouds(
         workers,
     )
     .map_err(Error::InvalidArgument)?;
-    run(&mut problem, init, config)
+    run(&mut problem, init, config, hooks.observer)
 }
 
 /// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
@@ -375,6 +376,7 @@ fn run(
     problem: &mut dyn Problem,
     init: Matrix4<f64>,
     config: &RegistrationConfig,
+    mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
     let mut transform = init;
@@ -407,8 +409,8 @@ fn run(
         let displacement = problem.displacement(&transform, &solve.transform);
         transform = solve.transform;
         rank_deficient = solve.rank_deficient;
-        if config.record_trace {
-            trace.push(trace_entry(
+        if config.record_trace || observer.is_some() {
+            let entry = trace_entry(
                 iteration,
                 &weighting,
                 rows,
@@ -416,7 +418,17 @@ fn run(
                 &work,
                 rotation_change,
                 translation_change,
-            ));
+            );
+            let cancelled = observer
+                .as_mut()
+                .is_some_and(|observe| observe(&entry).is_break());
+            if config.record_trace {
+                trace.push(entry);
+            }
+            if cancelled {
+                stop = StopReason::Cancelled;
+                break;
+            }
         }
         let below_tolerance = translation_change <= config.translation_tolerance
             && rotation_change <= config.rotation_tolerance;
@@ -450,7 +462,7 @@ fn run(
             break;
         }
     }
-    if rank_deficient {
+    if rank_deficient && stop != StopReason::Cancelled {
         stop = StopReason::Degenerate;
     }
 

@@ -6,10 +6,12 @@
 mod driver;
 mod problem;
 
+use std::ops::ControlFlow;
+
 use nalgebra::Matrix4;
 
 use crate::cost::CostFunction;
-use crate::noise::NoiseModel;
+use crate::noise::{NoiseModel, NoiseScales};
 use crate::sie::{HistogramModel, SieOptions};
 
 /// A 3-D point.
@@ -35,6 +37,8 @@ pub enum StopReason {
     /// system is rank deficient (e.g. collinear points, one plane for point-to-plane). The
     /// transform is the best constrained estimate reached.
     Degenerate,
+    /// The observer asked to stop; the transform is the one reached so far.
+    Cancelled,
 }
 
 /// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
@@ -226,3 +230,28 @@ pub struct InlierEstimate {
 }
 
 pub use driver::{estimate_inliers, register_clouds, register_correspondences};
+
+/// Caller code a registration calls back into. `Hooks::default()` uses none.
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// Per-point noise σ of both clouds (§4.4), called once per cloud; overrides
+    /// `RegistrationConfig::noise`.
+    pub noise: Option<&'a mut dyn NoiseScales>,
+    /// Called after every update with that iteration's trace entry (also when `record_trace`
+    /// is off). Returning `ControlFlow::Break(())` stops the registration with
+    /// `StopReason::Cancelled` and the transform reached so far.
+    pub observer: Option<&'a mut Observer<'a>>,
+}
+
+/// Per-iteration callback: `ControlFlow::Break(())` cancels the registration.
+pub type Observer<'a> = dyn FnMut(&TraceEntry) -> ControlFlow<()> + 'a;
+
+impl<'a> Hooks<'a> {
+    /// Only a noise callback.
+    pub fn noise(noise: Option<&'a mut dyn NoiseScales>) -> Self {
+        Hooks {
+            noise,
+            observer: None,
+        }
+    }
+}
