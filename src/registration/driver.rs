@@ -39,6 +39,21 @@ pub fn register_correspondences(
             target.len()
         )));
     }
+    if config.skip_non_finite {
+        let kept: Vec<u32> = (0..source.len() as u32)
+            .filter(|&i| is_finite(&source[i as usize]) && is_finite(&target[i as usize]))
+            .collect();
+        if kept.len() < source.len() {
+            let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
+            let (source_kept, target_kept) = (pick(source), pick(target));
+            let finite = RegistrationConfig {
+                skip_non_finite: false,
+                ..config.clone()
+            };
+            let result = register_correspondences(&source_kept, &target_kept, init, &finite, hooks)?;
+            return Ok(expand(result, &kept, source.len(), Some(&kept)));
+        }
+    }
     require_points("correspondences", source.len(), 3)?;
     require_finite("source", source)?;
     require_finite("target", target)?;
@@ -46,6 +61,88 @@ pub fn register_correspondences(
     let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
     run(&mut problem, init, config, hooks.observer)
+}
+
+fn is_finite(p: &Point) -> bool {
+    p.iter().all(|v| v.is_finite())
+}
+
+/// Indices of the finite points, or `None` when every point is finite (nothing to copy).
+fn finite_indices(points: &[Point]) -> Option<Vec<u32>> {
+    if points.iter().all(is_finite) {
+        return None;
+    }
+    Some(
+        (0..points.len() as u32)
+            .filter(|&i| is_finite(&points[i as usize]))
+            .collect(),
+    )
+}
+
+/// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
+fn register_finite_clouds(
+    source: &[Point],
+    target: &[Point],
+    target_normals: Option<&[Point]>,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
+    let finite = RegistrationConfig {
+        skip_non_finite: false,
+        ..config.clone()
+    };
+    let source_kept = finite_indices(source);
+    let target_kept = finite_indices(target);
+    let pick = |points: &[Point], kept: &Option<Vec<u32>>| -> Vec<Point> {
+        match kept {
+            Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
+            None => points.to_vec(),
+        }
+    };
+    let normals: Option<Vec<Point>> = target_normals.map(|normals| {
+        pick(normals, &target_kept)
+            .into_iter()
+            .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
+            .collect()
+    });
+    let source_points = pick(source, &source_kept);
+    let target_points = pick(target, &target_kept);
+    let result = register_clouds(
+        &source_points,
+        &target_points,
+        normals.as_deref(),
+        init,
+        &finite,
+        hooks,
+    )?;
+    let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
+    Ok(expand(result, &source_map, source.len(), target_kept.as_deref()))
+}
+
+/// Maps per-point results of a registration on kept points back to the caller's indexing:
+/// `source_kept[i]` is the original index of kept source point i, `target_kept` likewise for
+/// target indices (`None`: target indices are unchanged).
+fn expand(
+    mut result: RegistrationResult,
+    source_kept: &[u32],
+    source_count: usize,
+    target_kept: Option<&[u32]>,
+) -> RegistrationResult {
+    let mut probabilities = vec![0.0; source_count];
+    let mut correspondences = vec![-1i64; source_count];
+    for (k, &original) in source_kept.iter().enumerate() {
+        probabilities[original as usize] = result.probabilities[k];
+        let target = result.correspondences[k];
+        correspondences[original as usize] = match target_kept {
+            Some(map) if target >= 0 => map[target as usize] as i64,
+            _ => target,
+        };
+    }
+    result.inlier_fraction *= source_kept.len() as f64 / source_count.max(1) as f64;
+    result.probabilities = probabilities;
+    result.correspondences = correspondences;
+    result
 }
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
@@ -60,10 +157,6 @@ pub fn register_clouds(
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
     config.validate()?;
-    require_points("source", source.len(), 3)?;
-    require_points("target", target.len(), 3)?;
-    require_finite("source", source)?;
-    require_finite("target", target)?;
     if let Some(normals) = target_normals {
         if normals.len() != target.len() {
             return Err(Error::InvalidArgument(format!(
@@ -72,6 +165,15 @@ pub fn register_clouds(
                 normals.len()
             )));
         }
+    }
+    if config.skip_non_finite {
+        return register_finite_clouds(source, target, target_normals, init, config, hooks);
+    }
+    require_points("source", source.len(), 3)?;
+    require_points("target", target.len(), 3)?;
+    require_finite("source", source)?;
+    require_finite("target", target)?;
+    if let Some(normals) = target_normals {
         require_finite("target normals", normals)?;
         if config.metric == Metric::PointToPlane && normals.iter().all(|n| *n == [0.0; 3]) {
             return Err(Error::InvalidArgument(

@@ -73,6 +73,10 @@ pub struct RegistrationConfig {
     pub seed: u64,
     /// Record one `TraceEntry` per iteration.
     pub record_trace: bool,
+    /// Drop points (or pairs) with a NaN or infinite coordinate instead of rejecting the input
+    /// (depth images and PCL clouds with `is_dense = false` carry them). Dropped source points
+    /// report probability 0 and no match; a non-finite target normal counts as "no normal".
+    pub skip_non_finite: bool,
 }
 
 impl Default for RegistrationConfig {
@@ -93,6 +97,7 @@ impl Default for RegistrationConfig {
             threads: 0,
             seed: 0x5EED,
             record_trace: false,
+            skip_non_finite: false,
         }
     }
 }

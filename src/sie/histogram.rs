@@ -10,6 +10,11 @@ const MAX_RANGE_REFITS: usize = 5;
 const RANGE_TOLERANCE: f64 = 0.025;
 /// Shape-exponent search interval for `NoiseShape::Estimated`.
 const SHAPE_RANGE: (f64, f64) = (0.25, 4.0);
+/// An inlier peak must fall to at most MAX_SHOULDER·α at μ ± SHOULDER·σ (a clean Gaussian: 0.32).
+const SHOULDER: f64 = 1.5;
+const MAX_SHOULDER: f64 = 0.6;
+/// Below this many samples no histogram is fitted (every sample is taken as an inlier).
+const MIN_FIT_SAMPLES: usize = 10;
 /// Alternating σ / p rounds when p is estimated.
 const SHAPE_ROUNDS: usize = 6;
 
@@ -80,7 +85,14 @@ impl HistogramModel {
     #[inline]
     pub fn probability(&self, x: f64) -> f64 {
         let bins = self.probability.len();
-        if bins == 0 || !(x >= self.lo && x < self.hi) {
+        if bins == 0 {
+            return 0.0;
+        }
+        if self.hi == self.lo {
+            // No spread: only the value at the peak is an inlier.
+            return if x == self.lo { self.probability[0] } else { 0.0 };
+        }
+        if !(x >= self.lo && x < self.hi) {
             return 0.0;
         }
         let t = (x - self.lo) / (self.hi - self.lo) * bins as f64 - 0.5;
@@ -93,6 +105,20 @@ impl HistogramModel {
         }
         let f = t - i as f64;
         self.probability[i] * (1.0 - f) + self.probability[i + 1] * f
+    }
+
+    /// H̃ at x, linearly interpolated between bin centres (0 outside the range; |r| histograms
+    /// are mirrored at 0).
+    fn smoothed_at(&self, x: f64) -> f64 {
+        let bins = self.smoothed.len();
+        if bins == 0 || !(x >= self.lo && x < self.hi) {
+            return 0.0;
+        }
+        let t = ((x - self.lo) / (self.hi - self.lo) * bins as f64 - 0.5).max(0.0);
+        let i = (t as usize).min(bins - 1);
+        let next = (i + 1).min(bins - 1);
+        let f = t - i as f64;
+        self.smoothed[i] * (1.0 - f) + self.smoothed[next] * f
     }
 
     fn interval(&self, pooled: bool, options: &SieOptions) -> (f64, f64) {
@@ -117,10 +143,20 @@ impl HistogramModel {
         samples: impl Fn() -> I,
     ) {
         self.samples_total = samples().count();
+        if self.shape.sigma + self.beta <= 0.0 || (self.shape.sigma + self.beta).is_nan() {
+            // The last data had no spread; this data may (e.g. round-off after a perfect fit).
+            // Restart from the all-inlier ML estimate (§4.5) instead of a zero-width model.
+            let mu = self.shape.mu;
+            self.shape.sigma = super::root_mean_square(samples().map(|x| x - mu));
+        }
         for refit in 0..=MAX_RANGE_REFITS {
             let (lo, hi) = self.interval(pooled, options);
             if !((hi - lo).is_finite() && hi > lo) {
                 self.fit_without_spread(options);
+                return;
+            }
+            if self.samples_total < MIN_FIT_SAMPLES {
+                self.fit_too_few(options, lo, hi);
                 return;
             }
             self.build_histogram(options, pooled, lo, hi, &samples);
@@ -135,18 +171,34 @@ impl HistogramModel {
         self.update_probabilities(options);
     }
 
-    /// All samples equal (σ+β = 0): every sample sits exactly at the peak.
+    /// All samples equal (σ+β = 0): every sample sits exactly at the peak, so each is as likely
+    /// an inlier as the cap allows (e.g. a cloud registered onto itself). No peak is "found".
     fn fit_without_spread(&mut self, options: &SieOptions) {
         self.shape.sigma = 0.0;
         self.lo = self.shape.mu;
         self.hi = self.shape.mu;
+        self.set_flat(options, self.samples_total);
+    }
+
+    /// Too few samples for a histogram: keep the all-inlier ML start (σ = RMS, §4.5) and give
+    /// every sample in the range the capped probability. No peak is "found".
+    fn fit_too_few(&mut self, options: &SieOptions, lo: f64, hi: f64) {
+        self.lo = lo;
+        self.hi = hi;
+        self.set_flat(options, self.samples_total);
+    }
+
+    /// A one-bin histogram holding `count` samples, all at the capped probability.
+    fn set_flat(&mut self, options: &SieOptions, count: usize) {
         self.counts.clear();
-        self.smoothed.clear();
+        self.counts.push(count as f64);
+        self.smoothed.clone_from(&self.counts);
         self.probability.clear();
-        self.samples_in_range = 0;
-        self.mean_inlier_probability = 0.0;
+        self.probability.push(options.max_probability);
+        self.samples_in_range = count;
+        self.mean_inlier_probability = options.max_probability;
+        self.shape.alpha = count as f64;
         self.peak_found = false;
-        let _ = options;
     }
 
     fn build_histogram<I: Iterator<Item = f64>>(
@@ -183,7 +235,10 @@ impl HistogramModel {
         let per_bin = inside.max(1) as f64 / bins as f64;
         let one_sided = if pooled { 2.0 } else { 1.0 };
         let sparse = one_sided * options.data_per_bin / ((2.0 * std::f64::consts::PI).sqrt() * per_bin);
-        let std_bins = (options.smoothing * bins as f64 * capped).max(sparse);
+        // A kernel wider than a sixth of the histogram would flatten any peak: cap it.
+        let std_bins = (options.smoothing * bins as f64 * capped)
+            .max(sparse)
+            .min(bins as f64 / 6.0);
         smooth(&self.counts, &mut self.smoothed, std_bins, pooled);
     }
 
@@ -247,7 +302,18 @@ impl HistogramModel {
             }
         }
         self.shape.sigma = self.shape.sigma.max(options.min_sigma);
-        self.peak_found = self.shape.sigma < 0.99 * sigma_hi;
+        // An inlier peak falls off like G: at μ ± 1.5σ a Gaussian is down to 0.32α (plus the
+        // outlier background), while a flat histogram (only outliers) is still near α there.
+        // σ at its upper bracket means the fit found no bounded peak at all.
+        let right = self.smoothed_at(self.shape.mu + SHOULDER * self.shape.sigma);
+        let shoulder = if pooled {
+            right
+        } else {
+            0.5 * (right + self.smoothed_at(self.shape.mu - SHOULDER * self.shape.sigma))
+        };
+        self.peak_found = self.shape.sigma < 0.99 * sigma_hi
+            && shoulder <= MAX_SHOULDER * self.shape.alpha
+            && self.samples_in_range >= MIN_FIT_SAMPLES;
     }
 
     /// Eq. (InlierRatioReg): P(I|r) = min(cap, G_{σ+β}(r)/H̃(r)); H̃ is floored at one count and
