@@ -91,6 +91,12 @@ enum sie_status
      */
     SIE_STATUS_BUSY = 8,
     /**
+     * The registration was cancelled (`sie_context_cancel` or a progress callback returning
+     * non-zero). Not a failure: the transform reached so far WAS written to
+     * `out_T_target_source` and the result stored (stop reason CANCELLED).
+     */
+    SIE_STATUS_CANCELLED = 9,
+    /**
      * An internal error (a Rust panic) was caught; the stored result was discarded. Please
      * report it with the message from `sie_context_last_error`.
      */
@@ -318,6 +324,50 @@ typedef int32_t (*sie_noise_fn)(void *user_data,
                                 double *out_sigma);
 
 /**
+ * One iteration of the last registration (`sie_context_get_trace`; recorded only when
+ * `sie_context_set_trace(ctx, true)` was set).
+ */
+typedef struct sie_trace_entry {
+    /**
+     * sigma of the first histogram; the scale of baseline costs.
+     */
+    double sigma;
+    double beta;
+    double penalty;
+    /**
+     * Mean inlier probability over this iteration's correspondences.
+     */
+    double inlier_fraction;
+    /**
+     * Weighted RMS residual (input units).
+     */
+    double rmse;
+    /**
+     * Size of this update: translation (input units) and rotation (radians).
+     */
+    double translation_change;
+    double rotation_change;
+    uint64_t correspondences;
+    /**
+     * 1-based update count.
+     */
+    uint32_t iteration;
+    /**
+     * True while beta is being annealed, false in the final round.
+     */
+    bool annealing;
+} sie_trace_entry;
+
+/**
+ * Progress callback: called after every iteration of a registration with that iteration's
+ * trace entry (valid only during the call), synchronously on the registering thread. Return 0
+ * to continue; any other value cancels the registration, which then returns
+ * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
+ * on the same context from inside it return `SIE_STATUS_BUSY`.
+ */
+typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
+
+/**
  * Summary of the last successful registration (`sie_context_get_summary`).
  */
 typedef struct sie_summary {
@@ -424,41 +474,6 @@ typedef struct sie_model {
     bool peak_found;
 } sie_model;
 
-/**
- * One iteration of the last registration (`sie_context_get_trace`; recorded only when
- * `sie_context_set_trace(ctx, true)` was set).
- */
-typedef struct sie_trace_entry {
-    /**
-     * sigma of the first histogram; the scale of baseline costs.
-     */
-    double sigma;
-    double beta;
-    double penalty;
-    /**
-     * Mean inlier probability over this iteration's correspondences.
-     */
-    double inlier_fraction;
-    /**
-     * Weighted RMS residual (input units).
-     */
-    double rmse;
-    /**
-     * Size of this update: translation (input units) and rotation (radians).
-     */
-    double translation_change;
-    double rotation_change;
-    uint64_t correspondences;
-    /**
-     * 1-based update count.
-     */
-    uint32_t iteration;
-    /**
-     * True while beta is being annealed, false in the final round.
-     */
-    bool annealing;
-} sie_trace_entry;
-
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -497,6 +512,20 @@ struct sie_context *sie_context_new(void);
  * obtained from it (e.g. `sie_context_last_error`) may be used afterwards.
  */
 void sie_context_free(struct sie_context *ctx);
+
+/**
+ * Asks the registration running on this context to stop after its current iteration; it
+ * then returns `SIE_STATUS_CANCELLED` with the transform reached so far. If none is running,
+ * the next registration on this context stops after its first iteration (the request is
+ * consumed by the registration it stops). Unlike every other function this one may be called
+ * from any thread while another thread uses the context, and from a signal handler (it only
+ * sets an atomic flag), e.g. on Ctrl-C. Returns NULL_ARGUMENT for NULL, otherwise OK; it does
+ * not touch `sie_context_last_error`.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context.
+ */
+sie_status sie_context_cancel(const struct sie_context *ctx);
 
 /**
  * The detail message of the last call on this context that returned a status: "" after a
@@ -635,6 +664,30 @@ sie_status sie_context_set_seed(struct sie_context *ctx, uint64_t seed);
  * `ctx` is NULL or a live context.
  */
 sie_status sie_context_set_trace(struct sie_context *ctx, bool enabled);
+
+/**
+ * Drop points (pairs, for correspondences) with a NaN or infinite coordinate instead of
+ * failing with `SIE_STATUS_NON_FINITE_INPUT` (depth images and PCL clouds with
+ * `is_dense = false` carry them). Dropped source points report inlier probability 0 and target
+ * index -1; a non-finite target normal counts as "no normal"; the noise callback sees only the
+ * kept points. Default: false.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context.
+ */
+sie_status sie_context_set_skip_non_finite(struct sie_context *ctx, bool enabled);
+
+/**
+ * Installs (or with NULL `progress_fn`, removes) the per-iteration progress callback; see
+ * `sie_progress_fn`. `user_data` is passed back unchanged and never freed by the library.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; a non-NULL `progress_fn` must stay callable with
+ * `user_data` for as long as it is installed.
+ */
+sie_status sie_context_set_progress_callback(struct sie_context *ctx,
+                                             sie_progress_fn progress_fn,
+                                             void *user_data);
 
 /**
  * Registers the source cloud onto the target cloud (ICP with nearest-neighbour matching)

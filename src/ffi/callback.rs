@@ -2,8 +2,9 @@
 
 use core::ffi::c_void;
 
-use super::sie_cloud;
+use super::{sie_cloud, sie_trace_entry};
 use crate::noise::{CloudRole, NoiseScales};
+use crate::registration::TraceEntry;
 
 /// The non-NULL C function type behind `sie_noise_fn`.
 pub(crate) type NoiseFunction = unsafe extern "C" fn(
@@ -49,5 +50,26 @@ impl NoiseScales for NoiseCallback {
                 "noise callback returned {code} for the {cloud_name} cloud ({n} points)"
             ))
         }
+    }
+}
+
+/// The non-NULL C function type behind `sie_progress_fn`.
+pub(crate) type ProgressFunction =
+    unsafe extern "C" fn(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32;
+
+/// A registered progress callback and its user data.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ProgressCallback {
+    pub(crate) function: ProgressFunction,
+    pub(crate) user_data: *mut c_void,
+}
+
+impl ProgressCallback {
+    /// Calls the C function with one iteration's entry; non-zero asks to cancel.
+    pub(crate) fn call(&self, entry: &TraceEntry) -> i32 {
+        let entry = super::results::trace_entry_of(entry);
+        // SAFETY: `entry` lives for the duration of the synchronous call; the function pointer
+        // and user data come from `sie_context_set_progress_callback`, whose caller vouches.
+        unsafe { (self.function)(self.user_data, &entry) }
     }
 }

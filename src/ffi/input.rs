@@ -98,7 +98,8 @@ pub(crate) unsafe fn read_array<T: Copy>(ptr: *const T, len: usize, name: &str) 
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`
-/// (0 = packed), rejecting bad strides, misalignment and non-finite coordinates.
+/// (0 = packed), rejecting bad strides, misalignment and (unless `allow_non_finite`, for the
+/// skip-non-finite option) non-finite coordinates.
 ///
 /// # Safety
 /// `ptr` is NULL or valid for reading `count` points at that stride.
@@ -107,6 +108,7 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
     count: usize,
     stride_bytes: usize,
     name: &str,
+    allow_non_finite: bool,
 ) -> Result<Vec<Point>, FfiError> {
     check_non_null(ptr, name)?;
     let scalar = size_of::<T>();
@@ -138,11 +140,12 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
             [first.read(), first.add(1).read(), first.add(2).read()]
         };
         let point = point.map(Coordinate::to_f64);
-        if let Some(axis) = point.iter().position(|v| !v.is_finite()) {
+        if let Some(axis) = point.iter().position(|v| !v.is_finite() && !allow_non_finite) {
             return Err(FfiError::new(
                 sie_status::NonFiniteInput,
                 format!(
-                    "{name}[{i}] is {} ({} coordinate); remove non-finite points first",
+                    "{name}[{i}] is {} ({} coordinate); remove non-finite points first or enable \
+                     sie_context_set_skip_non_finite",
                     point[axis],
                     ["x", "y", "z"][axis]
                 ),

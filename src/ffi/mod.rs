@@ -24,10 +24,11 @@ mod estimate;
 use core::ffi::{c_char, c_void};
 use std::cell::{Ref, RefCell, RefMut};
 use std::ffi::{CStr, CString};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::registration::{RegistrationConfig, RegistrationResult};
 use boundary::{FfiError, static_c_str, without_context};
-use callback::NoiseCallback;
+use callback::{NoiseCallback, ProgressCallback};
 
 pub use estimate::*;
 pub use register::*;
@@ -60,6 +61,10 @@ pub enum sie_status {
     /// The context is in use by a registration further up the stack (a call from inside its
     /// noise callback); nothing was changed.
     Busy = 8,
+    /// The registration was cancelled (`sie_context_cancel` or a progress callback returning
+    /// non-zero). Not a failure: the transform reached so far WAS written to
+    /// `out_T_target_source` and the result stored (stop reason CANCELLED).
+    Cancelled = 9,
     /// An internal error (a Rust panic) was caught; the stored result was discarded. Please
     /// report it with the message from `sie_context_last_error`.
     Panic = 100,
@@ -164,6 +169,14 @@ pub type sie_noise_fn = Option<
     ) -> i32,
 >;
 
+/// Progress callback: called after every iteration of a registration with that iteration's
+/// trace entry (valid only during the call), synchronously on the registering thread. Return 0
+/// to continue; any other value cancels the registration, which then returns
+/// `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
+/// on the same context from inside it return `SIE_STATUS_BUSY`.
+pub type sie_progress_fn =
+    Option<unsafe extern "C" fn(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32>;
+
 /// Summary of the last successful registration (`sie_context_get_summary`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -253,6 +266,7 @@ pub struct sie_trace_entry {
 pub(crate) struct ContextState {
     pub(crate) config: RegistrationConfig,
     pub(crate) noise_callback: Option<NoiseCallback>,
+    pub(crate) progress_callback: Option<ProgressCallback>,
     /// The last successful registration; cleared by a failed one and after a panic.
     pub(crate) result: Option<RegistrationResult>,
 }
@@ -270,6 +284,9 @@ pub struct sie_context {
     state: RefCell<ContextState>,
     /// Separate from `state` because every call writes it, including rejected re-entrant ones.
     last_error: RefCell<CString>,
+    /// Set by `sie_context_cancel` (any thread, or a signal handler); consumed by the
+    /// registration it stops. Outside `state` so that setting it never touches the RefCells.
+    pub(crate) cancel_requested: AtomicBool,
 }
 
 impl sie_context {
@@ -340,6 +357,7 @@ pub extern "C" fn sie_status_str(status: u32) -> *const c_char {
             6 => c"no result",
             7 => c"buffer too small",
             8 => c"context busy",
+            9 => c"cancelled",
             100 => c"internal panic",
             _ => c"unknown status",
         };
@@ -376,6 +394,30 @@ pub unsafe extern "C" fn sie_context_free(ctx: *mut sie_context) {
         }
         // SAFETY: allocated by `sie_context_new` via Box::into_raw and not yet freed.
         drop(unsafe { Box::from_raw(ctx) });
+    })
+}
+
+/// Asks the registration running on this context to stop after its current iteration; it
+/// then returns `SIE_STATUS_CANCELLED` with the transform reached so far. If none is running,
+/// the next registration on this context stops after its first iteration (the request is
+/// consumed by the registration it stops). Unlike every other function this one may be called
+/// from any thread while another thread uses the context, and from a signal handler (it only
+/// sets an atomic flag), e.g. on Ctrl-C. Returns NULL_ARGUMENT for NULL, otherwise OK; it does
+/// not touch `sie_context_last_error`.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_cancel(ctx: *const sie_context) -> sie_status {
+    without_context(sie_status::Panic, || {
+        if ctx.is_null() {
+            return sie_status::NullArgument;
+        }
+        // SAFETY: live per the contract; only the atomic field is referenced, so this is sound
+        // while another thread holds the context's RefCells.
+        let flag = unsafe { &*core::ptr::addr_of!((*ctx).cancel_requested) };
+        flag.store(true, Ordering::Release);
+        sie_status::Ok
     })
 }
 

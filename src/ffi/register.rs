@@ -10,8 +10,13 @@ use nalgebra::Matrix4;
 use super::boundary::{FfiError, boundary};
 use super::input::{Coordinate, check_output, read_points, read_transform, row_major, write_output};
 use super::{ContextState, sie_context, sie_status};
+use std::ops::ControlFlow;
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use crate::noise::NoiseScales;
-use crate::registration::{Error, Point, RegistrationConfig, RegistrationResult};
+use crate::registration::{
+    Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
+};
 
 /// How far a given target normal's length may be from 1.
 const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
@@ -29,7 +34,7 @@ struct PointArray<T> {
 impl<T: Coordinate> PointArray<T> {
     /// # Safety
     /// `xyz` is NULL or valid for `count` points at `stride_bytes`.
-    unsafe fn read(self) -> Result<Vec<Point>, FfiError> {
+    unsafe fn read(self, allow_non_finite: bool) -> Result<Vec<Point>, FfiError> {
         // A NULL array is reported as such even when its count is 0.
         if self.count == 0 && !self.xyz.is_null() {
             return Err(FfiError::new(
@@ -38,7 +43,15 @@ impl<T: Coordinate> PointArray<T> {
             ));
         }
         // SAFETY: forwarded contract.
-        unsafe { read_points(self.xyz, self.count, self.stride_bytes, self.name) }
+        unsafe {
+            read_points(
+                self.xyz,
+                self.count,
+                self.stride_bytes,
+                self.name,
+                allow_non_finite,
+            )
+        }
     }
 }
 
@@ -62,17 +75,45 @@ fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
 /// `out_t_target_source` passed `check_output` and is valid for 16 writes.
 unsafe fn run_and_store(
     state: &mut ContextState,
+    cancel_requested: &AtomicBool,
     out_t_target_source: *mut f64,
-    run: impl FnOnce(&RegistrationConfig, Option<&mut dyn NoiseScales>) -> Result<RegistrationResult, Error>,
+    run: impl FnOnce(&RegistrationConfig, Hooks<'_>) -> Result<RegistrationResult, Error>,
 ) -> Result<(), FfiError> {
-    // The callback is Copy; a local copy keeps `state.config` borrowable alongside it.
-    let mut callback = state.noise_callback;
-    let noise = callback.as_mut().map(|c| c as &mut dyn NoiseScales);
-    let result = run(&state.config, noise)?;
+    // The callbacks are Copy; local copies keep `state.config` borrowable alongside them.
+    let mut noise_callback = state.noise_callback;
+    let progress_callback = state.progress_callback;
+    let mut cancelled_by = None;
+    let mut observe = |entry: &TraceEntry| {
+        if cancel_requested.swap(false, Ordering::AcqRel) {
+            cancelled_by = Some("sie_context_cancel".to_string());
+            return ControlFlow::Break(());
+        }
+        match progress_callback.map(|callback| callback.call(entry)) {
+            Some(code) if code != 0 => {
+                cancelled_by = Some(format!("the progress callback (it returned {code})"));
+                ControlFlow::Break(())
+            }
+            _ => ControlFlow::Continue(()),
+        }
+    };
+    let hooks = Hooks {
+        noise: noise_callback.as_mut().map(|c| c as &mut dyn NoiseScales),
+        observer: Some(&mut observe),
+    };
+    let result = run(&state.config, hooks)?;
     // SAFETY: per the contract.
     unsafe { write_output(out_t_target_source, &row_major(&result.transform)) };
+    let cancelled = result.stop_reason == StopReason::Cancelled;
+    let iterations = result.iterations;
     state.result = Some(result);
-    Ok(())
+    match cancelled_by.filter(|_| cancelled) {
+        // Not a failure: the transform reached so far was written and the result stored.
+        Some(by) => Err(FfiError::new(
+            sie_status::Cancelled,
+            format!("cancelled by {by} after {iterations} iterations; the transform so far was written"),
+        )),
+        None => Ok(()),
+    }
 }
 
 /// # Safety
@@ -91,11 +132,11 @@ unsafe fn register_clouds_from<T: Coordinate>(
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
-        let source_points = unsafe { source.read() }?;
-        let target_points = unsafe { target.read() }?;
+        let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
         let normals = match target_normals {
             Some(array) => {
-                let normals = unsafe { array.read() }?;
+                let normals = unsafe { array.read(state.config.skip_non_finite) }?;
                 check_unit_normals(&normals, array.name)?;
                 Some(normals)
             }
@@ -105,16 +146,21 @@ unsafe fn register_clouds_from<T: Coordinate>(
             unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
-            run_and_store(&mut state, out_t_target_source, |config, noise| {
-                crate::registration::register_clouds(
-                    &source_points,
-                    &target_points,
-                    normals.as_deref(),
-                    init.as_ref(),
-                    config,
-                    crate::registration::Hooks::noise(noise),
-                )
-            })
+            run_and_store(
+                &mut state,
+                &context.cancel_requested,
+                out_t_target_source,
+                |config, hooks| {
+                    crate::registration::register_clouds(
+                        &source_points,
+                        &target_points,
+                        normals.as_deref(),
+                        init.as_ref(),
+                        config,
+                        hooks,
+                    )
+                },
+            )
         }
     })
 }
@@ -134,20 +180,25 @@ unsafe fn register_correspondences_from<T: Coordinate>(
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
-        let source_points = unsafe { source.read() }?;
-        let target_points = unsafe { target.read() }?;
+        let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
-            run_and_store(&mut state, out_t_target_source, |config, noise| {
-                crate::registration::register_correspondences(
-                    &source_points,
-                    &target_points,
-                    init.as_ref(),
-                    config,
-                    crate::registration::Hooks::noise(noise),
-                )
-            })
+            run_and_store(
+                &mut state,
+                &context.cancel_requested,
+                out_t_target_source,
+                |config, hooks| {
+                    crate::registration::register_correspondences(
+                        &source_points,
+                        &target_points,
+                        init.as_ref(),
+                        config,
+                        hooks,
+                    )
+                },
+            )
         }
     })
 }

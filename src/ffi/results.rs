@@ -67,7 +67,7 @@ pub(crate) fn model_of(histogram: &HistogramModel) -> sie_model {
     }
 }
 
-fn trace_entry_of(entry: &crate::registration::TraceEntry) -> sie_trace_entry {
+pub(crate) fn trace_entry_of(entry: &crate::registration::TraceEntry) -> sie_trace_entry {
     sie_trace_entry {
         sigma: entry.sigma,
         beta: entry.beta,

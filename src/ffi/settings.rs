@@ -4,10 +4,10 @@
 use core::ffi::c_void;
 
 use super::boundary::{FfiError, boundary};
-use super::callback::NoiseCallback;
+use super::callback::{NoiseCallback, ProgressCallback};
 use super::{
     CEnum, sie_context, sie_cost_function, sie_histogram_mode, sie_metric, sie_noise_fn, sie_noise_model,
-    sie_status,
+    sie_progress_fn, sie_status,
 };
 use crate::cost::CostFunction;
 use crate::noise::NoiseModel;
@@ -315,4 +315,43 @@ pub unsafe extern "C" fn sie_context_set_trace(ctx: *mut sie_context, enabled: b
             Ok(())
         })
     }
+}
+
+/// Drop points (pairs, for correspondences) with a NaN or infinite coordinate instead of
+/// failing with `SIE_STATUS_NON_FINITE_INPUT` (depth images and PCL clouds with
+/// `is_dense = false` carry them). Dropped source points report inlier probability 0 and target
+/// index -1; a non-finite target normal counts as "no normal"; the noise callback sees only the
+/// kept points. Default: false.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_skip_non_finite(ctx: *mut sie_context, enabled: bool) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.skip_non_finite = enabled;
+            Ok(())
+        })
+    }
+}
+
+/// Installs (or with NULL `progress_fn`, removes) the per-iteration progress callback; see
+/// `sie_progress_fn`. `user_data` is passed back unchanged and never freed by the library.
+///
+/// # Safety
+/// `ctx` is NULL or a live context; a non-NULL `progress_fn` must stay callable with
+/// `user_data` for as long as it is installed.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_progress_callback(
+    ctx: *mut sie_context,
+    progress_fn: sie_progress_fn,
+    user_data: *mut c_void,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |context| {
+        let mut state = context.state_mut()?;
+        state.progress_callback = progress_fn.map(|function| ProgressCallback { function, user_data });
+        Ok(())
+    })
 }

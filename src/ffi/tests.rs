@@ -123,7 +123,8 @@ fn status_strings_and_version() {
     assert_eq!(text(sie_status::Ok as u32), "ok");
     assert_eq!(text(sie_status::Busy as u32), "context busy");
     assert_eq!(text(sie_status::Panic as u32), "internal panic");
-    assert_eq!(text(9), "unknown status");
+    assert_eq!(text(sie_status::Cancelled as u32), "cancelled");
+    assert_eq!(text(10), "unknown status");
     assert_eq!(text(u32::MAX), "unknown status");
     let version = unsafe { CStr::from_ptr(sie_version_string()) }.to_str().unwrap();
     assert_eq!(version, env!("CARGO_PKG_VERSION"));
@@ -484,31 +485,32 @@ fn points_are_read_with_byte_strides() {
             pad: f32::NAN,
         })
         .collect();
-    let points = unsafe { read_points(&raw const cloud[0].x, 4, 16, "source_xyz") }.unwrap();
+    let points = unsafe { read_points(&raw const cloud[0].x, 4, 16, "source_xyz", false) }.unwrap();
     assert_eq!(points[3], [3.0, 13.0, 23.0]);
 
     let packed = [1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0];
-    let points = unsafe { read_points(packed.as_ptr(), 2, 0, "target_xyz") }.unwrap();
+    let points = unsafe { read_points(packed.as_ptr(), 2, 0, "target_xyz", false) }.unwrap();
     assert_eq!(points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
     // Stride 32 over doubles: every other triple... of a 4-double record.
     let records = [1.0f64, 2.0, 3.0, -1.0, 4.0, 5.0, 6.0, -1.0];
-    let points = unsafe { read_points(records.as_ptr(), 2, 32, "target_xyz") }.unwrap();
+    let points = unsafe { read_points(records.as_ptr(), 2, 32, "target_xyz", false) }.unwrap();
     assert_eq!(points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
 
     for (stride, scalar) in [(10, "float"), (14, "float"), (8, "float")] {
-        let error = unsafe { read_points(&raw const cloud[0].x, 4, stride, "source_xyz") }.unwrap_err();
+        let error =
+            unsafe { read_points(&raw const cloud[0].x, 4, stride, "source_xyz", false) }.unwrap_err();
         assert_eq!(error.status, sie_status::InvalidArgument, "{stride}");
         assert!(error.message.contains(scalar) && error.message.contains(&stride.to_string()));
     }
-    let error = unsafe { read_points(packed.as_ptr(), 1, 12, "target_xyz") }.unwrap_err();
+    let error = unsafe { read_points(packed.as_ptr(), 1, 12, "target_xyz", false) }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
     let misaligned = unsafe { packed.as_ptr().byte_add(4) };
-    let error = unsafe { read_points(misaligned, 1, 0, "target_xyz") }.unwrap_err();
+    let error = unsafe { read_points(misaligned, 1, 0, "target_xyz", false) }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
     assert!(error.message.contains("aligned"), "{}", error.message);
-    let error = unsafe { read_points(null::<f32>(), 1, 0, "source_xyz") }.unwrap_err();
+    let error = unsafe { read_points(null::<f32>(), 1, 0, "source_xyz", false) }.unwrap_err();
     assert_eq!(error, FfiError::null("source_xyz"));
-    let error = unsafe { read_points(packed.as_ptr(), usize::MAX / 8, 0, "target_xyz") }.unwrap_err();
+    let error = unsafe { read_points(packed.as_ptr(), usize::MAX / 8, 0, "target_xyz", false) }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
 }
 
@@ -517,7 +519,7 @@ fn non_finite_coordinates_name_the_first_bad_point() {
     let mut xyz = vec![0.5f32; 3 * 20];
     xyz[3 * 17 + 1] = f32::NAN;
     xyz[3 * 19] = f32::INFINITY;
-    let error = unsafe { read_points(xyz.as_ptr(), 20, 0, "source_xyz") }.unwrap_err();
+    let error = unsafe { read_points(xyz.as_ptr(), 20, 0, "source_xyz", false) }.unwrap_err();
     assert_eq!(error.status, sie_status::NonFiniteInput);
     assert!(
         error.message.starts_with("source_xyz[17] is NaN (y"),

@@ -276,7 +276,8 @@ static void test_version_and_status_strings(void) {
     CHECK(strcmp(sie_status_str(SIE_STATUS_OK), "ok") == 0);
     CHECK(strcmp(sie_status_str(SIE_STATUS_BUFFER_TOO_SMALL), "buffer too small") == 0);
     CHECK(strcmp(sie_status_str(SIE_STATUS_PANIC), "internal panic") == 0);
-    CHECK(strcmp(sie_status_str(9), "unknown status") == 0);
+    CHECK(strcmp(sie_status_str(SIE_STATUS_CANCELLED), "cancelled") == 0);
+    CHECK(strcmp(sie_status_str(10), "unknown status") == 0);
     CHECK(strcmp(sie_status_str(0xFFFFFFFFu), "unknown status") == 0);
     CHECK(sizeof(sie_status) == 4);
 }
@@ -309,6 +310,9 @@ static void test_null_context(void) {
     EXPECT(none, sie_context_set_threads(NULL, 1), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_seed(NULL, 1), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_trace(NULL, true), SIE_STATUS_NULL_ARGUMENT);
+    EXPECT(none, sie_context_set_skip_non_finite(NULL, true), SIE_STATUS_NULL_ARGUMENT);
+    EXPECT(none, sie_context_set_progress_callback(NULL, NULL, NULL), SIE_STATUS_NULL_ARGUMENT);
+    CHECK(sie_context_cancel(NULL) == SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_register(NULL, xyz, 1, 0, xyz, 1, 0, NULL, T), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_register_d(NULL, dxyz, 1, 0, dxyz, 1, 0, NULL, T), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_register_with_normals(NULL, xyz, 1, 0, xyz, 1, 0, xyz, 0, NULL, T),
@@ -796,6 +800,54 @@ static void test_estimate_inliers(sie_context *ctx) {
     EXPECT(ctx, sie_context_set_histogram_mode(ctx, SIE_HISTOGRAM_MODE_POOLED), SIE_STATUS_OK);
 }
 
+/* Cancels when the iteration reaches *(uint32_t *)user_data. */
+static int32_t cancel_at_iteration(void *user_data, const sie_trace_entry *entry) {
+    return entry->iteration >= *(const uint32_t *)user_data ? 1 : 0;
+}
+
+static void test_cancellation_and_non_finite(sie_context *ctx) {
+    double T[16];
+    uint32_t stop_at = 2;
+    sie_summary summary;
+    float with_nan[PAIRS * 3];
+    double probabilities[PAIRS];
+    int64_t correspondences[PAIRS];
+
+    /* A progress callback that asks to stop: CANCELLED, with the transform so far written. */
+    EXPECT(ctx, sie_context_set_progress_callback(ctx, cancel_at_iteration, &stop_at), SIE_STATUS_OK);
+    memset(T, 0, sizeof(T));
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_CANCELLED);
+    CHECK(T[15] == 1.0);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    CHECK(summary.stop_reason == SIE_STOP_REASON_CANCELLED && summary.iterations == 2 && !summary.converged);
+    EXPECT(ctx, sie_context_set_progress_callback(ctx, NULL, NULL), SIE_STATUS_OK);
+
+    /* A cancel request made before a run stops it after its first iteration, once. */
+    CHECK(sie_context_cancel(ctx) == SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_CANCELLED);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    CHECK(summary.iterations == 1);
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_OK);
+
+    /* NaN points: rejected by index, or skipped on request with probability 0 and no match. */
+    memcpy(with_nan, pair_source, sizeof(with_nan));
+    with_nan[3 * 7 + 1] = NAN;
+    EXPECT(ctx, sie_context_register_correspondences(ctx, with_nan, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_NON_FINITE_INPUT);
+    CHECK(error_contains(ctx, "source_xyz[7]"));
+    EXPECT(ctx, sie_context_set_skip_non_finite(ctx, true), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_correspondences(ctx, with_nan, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_OK);
+    CHECK(max_abs_difference(T, pair_truth, 16) < 0.01);
+    EXPECT(ctx, sie_context_get_inlier_probabilities(ctx, probabilities, PAIRS, NULL), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_correspondences(ctx, correspondences, PAIRS, NULL), SIE_STATUS_OK);
+    CHECK(probabilities[7] == 0.0 && correspondences[7] == -1 && correspondences[8] == 8);
+    EXPECT(ctx, sie_context_set_skip_non_finite(ctx, false), SIE_STATUS_OK);
+}
+
 int main(void) {
     sie_context *ctx = sie_context_new();
     if (ctx == NULL) {
@@ -815,6 +867,7 @@ int main(void) {
     test_cloud_registration(ctx);
     test_noise_callback(ctx);
     test_estimate_inliers(ctx);
+    test_cancellation_and_non_finite(ctx);
 
     sie_context_free(ctx);
     printf("api_test: %d checks, %d failed\n", checks, failures);

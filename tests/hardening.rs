@@ -1,0 +1,493 @@
+//! Faults and load at the C ABI: cancellation, non-finite input, degenerate geometry, SIE edge
+//! cases, concurrent contexts and repeated use (issue "Hardening").
+use std::ffi::CStr;
+use std::ptr::{null, null_mut};
+use std::sync::{Arc, Barrier, mpsc};
+
+use core::ffi::c_void;
+use sie::ffi::*;
+use sie::synthetic::{paper_simulation, room_scene};
+
+/// An owned context freed on drop.
+struct Context(*mut sie_context);
+
+impl Context {
+    fn new() -> Self {
+        let ctx = sie_context_new();
+        assert!(!ctx.is_null());
+        Context(ctx)
+    }
+
+    fn last_error(&self) -> String {
+        // SAFETY: live context; the string is copied before the next call.
+        unsafe { CStr::from_ptr(sie_context_last_error(self.0)) }
+            .to_string_lossy()
+            .into_owned()
+    }
+
+    fn summary(&self) -> sie_summary {
+        let mut summary = sie_summary::default();
+        // SAFETY: live context and a valid out pointer.
+        assert_eq!(
+            unsafe { sie_context_get_summary(self.0, &mut summary) },
+            sie_status::Ok
+        );
+        summary
+    }
+
+    fn probabilities(&self, n: usize) -> Vec<f64> {
+        let mut out = vec![-1.0; n];
+        // SAFETY: `out` holds n doubles.
+        let status = unsafe { sie_context_get_inlier_probabilities(self.0, out.as_mut_ptr(), n, null_mut()) };
+        assert_eq!(status, sie_status::Ok);
+        out
+    }
+
+    fn correspondences(&self, n: usize) -> Vec<i64> {
+        let mut out = vec![-7; n];
+        // SAFETY: `out` holds n entries.
+        let status = unsafe { sie_context_get_correspondences(self.0, out.as_mut_ptr(), n, null_mut()) };
+        assert_eq!(status, sie_status::Ok);
+        out
+    }
+
+    /// ICP on double clouds (packed), identity start.
+    fn register(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
+        // SAFETY: packed arrays of the given counts; `out` holds 16 doubles.
+        unsafe {
+            sie_context_register_d(
+                self.0,
+                source.as_ptr().cast(),
+                source.len(),
+                0,
+                target.as_ptr().cast(),
+                target.len(),
+                0,
+                null(),
+                out.as_mut_ptr(),
+            )
+        }
+    }
+
+    fn register_pairs(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
+        // SAFETY: packed arrays of equal length; `out` holds 16 doubles.
+        unsafe {
+            sie_context_register_correspondences_d(
+                self.0,
+                source.as_ptr().cast(),
+                0,
+                target.as_ptr().cast(),
+                0,
+                source.len(),
+                null(),
+                out.as_mut_ptr(),
+            )
+        }
+    }
+}
+
+impl Drop for Context {
+    fn drop(&mut self) {
+        // SAFETY: allocated by sie_context_new, freed once.
+        unsafe { sie_context_free(self.0) };
+    }
+}
+
+const SENTINEL: f64 = -12345.0;
+
+fn finite_transform(t: &[f64; 16]) -> bool {
+    t.iter().all(|v| v.is_finite()) && t[12..] == [0.0, 0.0, 0.0, 1.0]
+}
+
+fn shifted_pairs(seed: u64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let t0 = nalgebra::Translation3::new(0.5, 0.0, 0.0).to_homogeneous();
+    let data = paper_simulation(1000, 1000, 0.01, &t0, seed);
+    (data.source, data.target)
+}
+
+// ---------------------------------------------------------------- cancellation
+
+/// user_data = the iteration at which to ask for cancellation.
+unsafe extern "C" fn cancel_at(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32 {
+    // SAFETY: the test passes a pointer to a live u32; `entry` is valid during the call.
+    let (stop_at, iteration) = unsafe { (*(user_data as *const u32), (*entry).iteration) };
+    i32::from(iteration >= stop_at)
+}
+
+#[test]
+fn progress_callback_cancels_with_the_transform_so_far() {
+    let ctx = Context::new();
+    let (source, target) = shifted_pairs(1);
+    let mut stop_at = 3u32;
+    // SAFETY: `stop_at` outlives the registration that uses it.
+    let status =
+        unsafe { sie_context_set_progress_callback(ctx.0, Some(cancel_at), (&raw mut stop_at).cast()) };
+    assert_eq!(status, sie_status::Ok);
+    let mut out = [SENTINEL; 16];
+    assert_eq!(
+        ctx.register_pairs(&source, &target, &mut out),
+        sie_status::Cancelled
+    );
+    assert!(
+        ctx.last_error().contains("progress callback"),
+        "{}",
+        ctx.last_error()
+    );
+    // The transform so far is written and is already close to the answer (x shift of -0.5).
+    assert!(finite_transform(&out));
+    assert!((out[3] + 0.5).abs() < 0.2, "tx {}", out[3]);
+    let summary = ctx.summary();
+    assert_eq!(summary.stop_reason, sie_stop_reason::Cancelled as u32);
+    assert_eq!(summary.iterations, 3);
+    assert!(!summary.converged);
+    // Removing the callback lets the next run finish.
+    // SAFETY: live context.
+    assert_eq!(
+        unsafe { sie_context_set_progress_callback(ctx.0, None, null_mut()) },
+        sie_status::Ok
+    );
+    assert_eq!(ctx.register_pairs(&source, &target, &mut out), sie_status::Ok);
+    assert_eq!(ctx.summary().stop_reason, sie_stop_reason::Converged as u32);
+}
+
+#[test]
+fn cancel_request_before_a_run_stops_it_after_one_iteration_and_is_consumed() {
+    let ctx = Context::new();
+    let (source, target) = shifted_pairs(2);
+    // SAFETY: live context.
+    assert_eq!(unsafe { sie_context_cancel(ctx.0) }, sie_status::Ok);
+    let mut out = [SENTINEL; 16];
+    assert_eq!(
+        ctx.register_pairs(&source, &target, &mut out),
+        sie_status::Cancelled
+    );
+    assert!(
+        ctx.last_error().contains("sie_context_cancel"),
+        "{}",
+        ctx.last_error()
+    );
+    assert_eq!(ctx.summary().iterations, 1);
+    assert_eq!(ctx.register_pairs(&source, &target, &mut out), sie_status::Ok);
+    // SAFETY: NULL is allowed and reported.
+    assert_eq!(unsafe { sie_context_cancel(null()) }, sie_status::NullArgument);
+}
+
+struct Handshake {
+    started: mpsc::Sender<()>,
+    cancelled: Arc<Barrier>,
+}
+
+/// At iteration 2, tells the other thread to cancel and waits until it has.
+unsafe extern "C" fn wait_for_cancel(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32 {
+    // SAFETY: the test passes a live Handshake; `entry` is valid during the call.
+    let (handshake, iteration) = unsafe { (&*(user_data as *const Handshake), (*entry).iteration) };
+    if iteration == 2 {
+        handshake.started.send(()).unwrap();
+        handshake.cancelled.wait();
+    }
+    0
+}
+
+#[derive(Clone, Copy)]
+struct SendPointer(*const sie_context);
+// SAFETY: only `sie_context_cancel`, documented as callable from any thread, uses it.
+unsafe impl Send for SendPointer {}
+
+#[test]
+fn cancel_from_another_thread_stops_a_running_registration() {
+    let ctx = Context::new();
+    let (source, target) = shifted_pairs(3);
+    let (started, wait_started) = mpsc::channel();
+    let cancelled = Arc::new(Barrier::new(2));
+    let mut handshake = Handshake {
+        started,
+        cancelled: Arc::clone(&cancelled),
+    };
+    // SAFETY: `handshake` outlives the registration.
+    unsafe { sie_context_set_progress_callback(ctx.0, Some(wait_for_cancel), (&raw mut handshake).cast()) };
+    let pointer = SendPointer(ctx.0);
+    let canceller = std::thread::spawn(move || {
+        let pointer = pointer;
+        wait_started.recv().unwrap();
+        // SAFETY: the context lives until the registration on the other thread returns.
+        let status = unsafe { sie_context_cancel(pointer.0) };
+        cancelled.wait();
+        status
+    });
+    let mut out = [SENTINEL; 16];
+    assert_eq!(
+        ctx.register_pairs(&source, &target, &mut out),
+        sie_status::Cancelled
+    );
+    assert_eq!(canceller.join().unwrap(), sie_status::Ok);
+    // Requested during iteration 2, seen at the end of iteration 3.
+    assert_eq!(ctx.summary().iterations, 3);
+    assert!(finite_transform(&out));
+}
+
+// ---------------------------------------------------------------- non-finite input
+
+#[test]
+fn non_finite_points_are_rejected_by_index_or_skipped_on_request() {
+    let scene = room_scene(3000, 0.01, 5);
+    let (mut source, mut target) = (scene.source.clone(), scene.target.clone());
+    source[17] = [f64::NAN, 0.0, 0.0];
+    source[400][2] = f64::INFINITY;
+    target[5] = [f64::NAN; 3];
+    let ctx = Context::new();
+    let mut out = [SENTINEL; 16];
+    assert_eq!(
+        ctx.register(&source, &target, &mut out),
+        sie_status::NonFiniteInput
+    );
+    assert!(
+        ctx.last_error().contains("source_xyz[17]"),
+        "{}",
+        ctx.last_error()
+    );
+    assert!(
+        out.iter().all(|v| *v == SENTINEL),
+        "outputs must stay untouched on error"
+    );
+
+    // SAFETY: live context.
+    assert_eq!(
+        unsafe { sie_context_set_skip_non_finite(ctx.0, true) },
+        sie_status::Ok
+    );
+    assert_eq!(ctx.register(&source, &target, &mut out), sie_status::Ok);
+    assert!(finite_transform(&out));
+    let truth = scene.t_target_source;
+    let translation_error = ((out[3] - truth[(0, 3)]).powi(2) + (out[7] - truth[(1, 3)]).powi(2)).sqrt();
+    assert!(translation_error < 0.01, "{translation_error}");
+    let p = ctx.probabilities(source.len());
+    let c = ctx.correspondences(source.len());
+    assert_eq!((p[17], c[17]), (0.0, -1));
+    assert_eq!((p[400], c[400]), (0.0, -1));
+    // Target indices refer to the caller's array, so the NaN target point is never matched.
+    assert!(c.iter().all(|&t| t != 5 && t < target.len() as i64));
+    assert_eq!(ctx.summary().source_count, source.len() as u64);
+
+    // Correspondences: a pair with a non-finite side is dropped.
+    let (mut a, mut b) = shifted_pairs(4);
+    b[10][1] = f64::NAN;
+    assert_eq!(ctx.register_pairs(&a, &b, &mut out), sie_status::Ok);
+    assert_eq!(ctx.probabilities(a.len())[10], 0.0);
+    a[11] = [f64::NEG_INFINITY; 3];
+    assert_eq!(ctx.register_pairs(&a, &b, &mut out), sie_status::Ok);
+    assert_eq!(ctx.correspondences(a.len())[11], -1);
+}
+
+// ---------------------------------------------------------------- degenerate geometry
+
+fn assert_no_nan(ctx: &Context, n: usize, out: &[f64; 16]) {
+    assert!(finite_transform(out), "{out:?}");
+    let s = ctx.summary();
+    for v in s
+        .sigma
+        .iter()
+        .chain(&s.beta)
+        .chain([&s.penalty, &s.noise_shape, &s.inlier_fraction, &s.rmse])
+    {
+        assert!(v.is_finite(), "{s:?}");
+    }
+    assert!(ctx.probabilities(n).iter().all(|p| (0.0..=1.0).contains(p)));
+}
+
+#[test]
+fn degenerate_geometry_gives_finite_outputs_and_says_so() {
+    let identical = vec![[1.0, 2.0, 3.0]; 500];
+    let collinear: Vec<[f64; 3]> = (0..500).map(|i| [i as f64 * 0.01, 0.0, 0.0]).collect();
+    let plane: Vec<[f64; 3]> = (0..900)
+        .map(|i| [(i % 30) as f64 * 0.05, (i / 30) as f64 * 0.05, 1.0])
+        .collect();
+    let shifted_plane: Vec<[f64; 3]> = plane
+        .iter()
+        .map(|p| [p[0] + 0.02, p[1] - 0.01, p[2] + 0.03])
+        .collect();
+    for metric in [sie_metric::PointToPlane, sie_metric::PointToPoint] {
+        let ctx = Context::new();
+        // SAFETY: live context.
+        assert_eq!(
+            unsafe { sie_context_set_metric(ctx.0, metric as u32) },
+            sie_status::Ok
+        );
+        for (name, source, target) in [
+            ("identical points", &identical, &identical),
+            ("collinear points", &collinear, &collinear),
+            ("one plane", &shifted_plane, &plane),
+        ] {
+            let mut out = [SENTINEL; 16];
+            let status = ctx.register(source, target, &mut out);
+            assert_eq!(status, sie_status::Ok, "{metric:?} {name}: {}", ctx.last_error());
+            assert_no_nan(&ctx, source.len(), &out);
+            let stop = ctx.summary().stop_reason;
+            if name != "one plane" || metric == sie_metric::PointToPlane {
+                // Identical and collinear points leave rotations free; point-to-plane on one
+                // plane leaves the in-plane motion free.
+                assert_eq!(stop, sie_stop_reason::Degenerate as u32, "{metric:?} {name}");
+            }
+            if name == "one plane" {
+                // The constrained direction (the plane's normal) is solved either way.
+                assert!((out[11] + 0.03).abs() < 1e-3, "{metric:?}: tz {}", out[11]);
+            }
+        }
+    }
+}
+
+#[test]
+fn symmetric_shape_registers_without_nan() {
+    // Points on a sphere: rotations about its centre are unobservable for point-to-plane.
+    let sphere: Vec<[f64; 3]> = (0..2000)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / 2000.0;
+            let r = (1.0 - z * z).sqrt();
+            let phi = i as f64 * 2.399_963;
+            [r * phi.cos(), r * phi.sin(), z]
+        })
+        .collect();
+    let moved: Vec<[f64; 3]> = sphere.iter().map(|p| [p[0] + 0.05, p[1], p[2] - 0.02]).collect();
+    let ctx = Context::new();
+    let mut out = [SENTINEL; 16];
+    assert_eq!(ctx.register(&moved, &sphere, &mut out), sie_status::Ok);
+    assert_no_nan(&ctx, moved.len(), &out);
+    // The centre (translation) is observable and recovered.
+    assert!(
+        (out[3] + 0.05).abs() < 2e-3 && (out[11] - 0.02).abs() < 2e-3,
+        "{out:?}"
+    );
+}
+
+// ---------------------------------------------------------------- SIE edge cases
+
+fn estimate(residuals: &[f64]) -> (sie_status, Vec<f64>, sie_model) {
+    let ctx = Context::new();
+    let mut p = vec![-1.0; residuals.len()];
+    let mut model = sie_model::default();
+    let mut count = 0;
+    // SAFETY: buffers sized for the inputs.
+    let status = unsafe {
+        sie_estimate_inliers(
+            ctx.0,
+            residuals.as_ptr(),
+            residuals.len(),
+            1,
+            null(),
+            0.0,
+            p.as_mut_ptr(),
+            &mut model,
+            1,
+            &mut count,
+        )
+    };
+    (status, p, model)
+}
+
+#[test]
+fn sie_handles_identical_flat_clean_and_overwhelmed_residuals() {
+    use rand::{RngExt, SeedableRng};
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(21);
+    let noise = Normal::new(0.0, 0.02).unwrap();
+    let mut mixture = |outlier_share: f64| -> Vec<f64> {
+        (0..10_000)
+            .map(|_| {
+                if rng.random::<f64>() < outlier_share {
+                    rng.random_range(-1.0..1.0)
+                } else {
+                    noise.sample(&mut rng)
+                }
+            })
+            .collect()
+    };
+    let cases: Vec<(&str, Vec<f64>, bool)> = vec![
+        ("all identical (one bin)", vec![0.25; 5000], false),
+        ("all zero", vec![0.0; 5000], false),
+        ("only outliers (no peak)", mixture(1.0), false),
+        ("0 % outliers", mixture(0.0), true),
+        ("30 % outliers", mixture(0.3), true),
+        ("99 % outliers", mixture(0.99), false),
+    ];
+    for (name, residuals, peak) in cases {
+        let (status, p, model) = estimate(&residuals);
+        assert_eq!(status, sie_status::Ok, "{name}");
+        assert!(p.iter().all(|v| (0.0..=1.0).contains(v)), "{name}");
+        for v in [
+            model.mu,
+            model.sigma,
+            model.alpha,
+            model.shape,
+            model.range_lo,
+            model.range_hi,
+        ] {
+            assert!(v.is_finite(), "{name}: {model:?}");
+        }
+        assert_eq!(model.peak_found, peak, "{name}: {model:?}");
+        if peak {
+            assert!(
+                (model.sigma - 0.02).abs() < 0.002,
+                "{name}: sigma {}",
+                model.sigma
+            );
+        }
+    }
+}
+
+// ---------------------------------------------------------------- threads and load
+
+fn register_scene(seed: u64) -> ([f64; 16], Vec<f64>) {
+    let scene = room_scene(2500, 0.01, seed);
+    let ctx = Context::new();
+    let mut out = [SENTINEL; 16];
+    assert_eq!(
+        ctx.register(&scene.source, &scene.target, &mut out),
+        sie_status::Ok
+    );
+    (out, ctx.probabilities(scene.source.len()))
+}
+
+#[test]
+fn eight_threads_with_their_own_contexts_match_serial_results() {
+    let seeds: Vec<u64> = (100..108).collect();
+    let serial: Vec<_> = seeds.iter().map(|&s| register_scene(s)).collect();
+    let parallel: Vec<_> = seeds
+        .iter()
+        .map(|&s| std::thread::spawn(move || register_scene(s)))
+        .collect::<Vec<_>>()
+        .into_iter()
+        .map(|h| h.join().unwrap())
+        .collect();
+    assert_eq!(serial, parallel);
+}
+
+fn resident_bytes() -> Option<usize> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: usize = statm.split_whitespace().nth(1)?.parse().ok()?;
+    Some(pages * 4096)
+}
+
+#[test]
+fn a_thousand_registrations_on_one_context_do_not_grow_memory() {
+    let scene = room_scene(800, 0.01, 9);
+    let ctx = Context::new();
+    let mut out = [SENTINEL; 16];
+    let mut run = |times: usize| {
+        for _ in 0..times {
+            assert_eq!(
+                ctx.register(&scene.source, &scene.target, &mut out),
+                sie_status::Ok
+            );
+        }
+    };
+    run(50);
+    let Some(before) = resident_bytes() else { return };
+    run(1000);
+    let after = resident_bytes().unwrap();
+    let growth = after.saturating_sub(before);
+    println!("RSS before {before} B, after 1000 runs {after} B (growth {growth} B)");
+    // One registration's working set is ~1 MB; a leak of even 1 kB per run would show as 1 MB.
+    assert!(
+        growth < 1 << 20,
+        "RSS grew by {growth} bytes over 1000 registrations"
+    );
+}
