@@ -567,8 +567,9 @@ sie_status sie_context_set_metric(struct sie_context *ctx, uint32_t metric);
 sie_status sie_context_set_max_iterations(struct sie_context *ctx, uint32_t max_iterations);
 
 /**
- * Converged when an update moves the translation by less than `translation` (input units) and
- * rotates by less than `rotation_radians`; both finite and >= 0. Default: 1e-6 and 1e-6.
+ * Converged when an update moves the source cloud's centroid by less than `translation` (input
+ * units) and rotates by less than `rotation_radians`; both finite and >= 0. Measured at the
+ * centroid so the test does not depend on the frame. Default: 1e-6 and 1e-6.
  *
  * # Safety
  * `ctx` is NULL or a live context.

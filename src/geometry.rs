@@ -54,13 +54,27 @@ pub fn rotation_angle(r: &Matrix3<f64>) -> f64 {
     sin.atan2(cos)
 }
 
-/// Rotation angle (radians) and translation distance between two transforms.
-pub fn transform_change(old: &Matrix4<f64>, new: &Matrix4<f64>) -> (f64, f64) {
+/// How far an update from `old` to `new` moves things: the rotation angle (radians) and the
+/// distance the point `anchor` moves. With `anchor` at the data's centroid both are
+/// independent of the frame the clouds are expressed in (the translation vector of T is not:
+/// far from the origin a small rotation changes it a lot).
+pub fn transform_change(old: &Matrix4<f64>, new: &Matrix4<f64>, anchor: &Point) -> (f64, f64) {
     let dr = rotation_part(new) * rotation_part(old).transpose();
-    (
-        rotation_angle(&dr),
-        (translation_part(new) - translation_part(old)).norm(),
-    )
+    let (a, b) = (transform_point(old, anchor), transform_point(new, anchor));
+    let moved = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    (rotation_angle(&dr), moved)
+}
+
+/// Centroid of a point set (origin for none).
+pub fn centroid(points: &[Point]) -> Point {
+    if points.is_empty() {
+        return [0.0; 3];
+    }
+    let sum = points
+        .iter()
+        .fold([0.0; 3], |s, p| [s[0] + p[0], s[1] + p[1], s[2] + p[2]]);
+    let n = points.len() as f64;
+    [sum[0] / n, sum[1] / n, sum[2] / n]
 }
 
 /// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation.

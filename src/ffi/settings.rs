@@ -109,8 +109,9 @@ pub unsafe extern "C" fn sie_context_set_max_iterations(
     }
 }
 
-/// Converged when an update moves the translation by less than `translation` (input units) and
-/// rotates by less than `rotation_radians`; both finite and >= 0. Default: 1e-6 and 1e-6.
+/// Converged when an update moves the source cloud's centroid by less than `translation` (input
+/// units) and rotates by less than `rotation_radians`; both finite and >= 0. Measured at the
+/// centroid so the test does not depend on the frame. Default: 1e-6 and 1e-6.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context.

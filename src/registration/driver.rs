@@ -481,6 +481,7 @@ fn run(
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
+    let anchor = problem.source_centroid();
     let mut transform = init;
     let mut weighting = Weighting::new(config);
     let mut work = Workspace {
@@ -507,7 +508,7 @@ fn run(
         };
         iterations = iteration;
         let rows = problem.rows();
-        let (rotation_change, translation_change) = transform_change(&transform, &solve.transform);
+        let (rotation_change, translation_change) = transform_change(&transform, &solve.transform, &anchor);
         let displacement = problem.displacement(&transform, &solve.transform);
         transform = solve.transform;
         rank_deficient = solve.rank_deficient;

@@ -50,7 +50,7 @@ pub struct RegistrationConfig {
     pub metric: Metric,
     /// Cap on IRLS updates (each is one match + weight + solve step).
     pub max_iterations: u32,
-    /// Converged when the update moves the translation by less than this (input units) …
+    /// Converged when the update moves the source centroid by less than this (input units) …
     pub translation_tolerance: f64,
     /// … and rotates by less than this (radians).
     pub rotation_tolerance: f64,
@@ -161,7 +161,7 @@ pub struct TraceEntry {
     pub inlier_fraction: f64,
     /// Weighted RMS residual of this iteration (input units).
     pub rmse: f64,
-    /// Size of this update.
+    /// Size of this update: how far it moved the source centroid, and its rotation angle.
     pub translation_change: f64,
     pub rotation_change: f64,
     pub correspondences: usize,

@@ -45,6 +45,8 @@ pub trait Problem {
     /// Residual dimensions m.
     fn cols(&self) -> usize;
     fn source_count(&self) -> usize;
+    /// Centroid of the source points (where update sizes are measured).
+    fn source_centroid(&self) -> Point;
     /// (Re)matches at `transform` and fills the rows used for fitting.
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows;
     /// The rows of the last `linearise`.
@@ -120,6 +122,10 @@ impl Problem for CorrespondenceProblem<'_> {
 
     fn source_count(&self) -> usize {
         self.source.len()
+    }
+
+    fn source_centroid(&self) -> Point {
+        crate::geometry::centroid(self.source)
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {
@@ -305,6 +311,10 @@ impl Problem for CloudProblem<'_> {
 
     fn source_count(&self) -> usize {
         self.source.len()
+    }
+
+    fn source_centroid(&self) -> Point {
+        crate::geometry::centroid(self.source)
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {

@@ -1,0 +1,162 @@
+//! Property tests of the core: probabilities stay in [0, 1] for any residual matrix, every
+//! returned transform is a proper rotation, and results follow a rigid change of both frames.
+use nalgebra::{Matrix3, Matrix4, Rotation3, Translation3};
+use proptest::prelude::*;
+use sie::geometry::{rotation_part, transform_point};
+use sie::synthetic::{paper_simulation, room_scene};
+use sie::{
+    CostFunction, HistogramMode, Hooks, Metric, NoiseShape, Point, RegistrationConfig, SieOptions,
+    estimate_inliers, register_clouds, register_correspondences,
+};
+
+fn is_proper_rotation(t: &Matrix4<f64>) -> bool {
+    let r = rotation_part(t);
+    let orthonormal = (r.transpose() * r - Matrix3::identity()).abs().max() < 1e-9;
+    let bottom = t.row(3).iter().zip([0.0, 0.0, 0.0, 1.0]).all(|(a, b)| *a == b);
+    orthonormal && (r.determinant() - 1.0).abs() < 1e-9 && bottom && t.iter().all(|v| v.is_finite())
+}
+
+fn rigid(rx: f64, ry: f64, rz: f64, tx: f64, ty: f64, tz: f64) -> Matrix4<f64> {
+    Translation3::new(tx, ty, tz).to_homogeneous() * Rotation3::from_euler_angles(rx, ry, rz).to_homogeneous()
+}
+
+fn options(pooled: bool, shape: u8) -> SieOptions {
+    SieOptions {
+        histogram: if pooled {
+            HistogramMode::Pooled
+        } else {
+            HistogramMode::PerColumn
+        },
+        shape: match shape {
+            0 => NoiseShape::Fixed(2.0),
+            1 => NoiseShape::Fixed(1.0),
+            _ => NoiseShape::Estimated,
+        },
+        ..SieOptions::default()
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
+
+    /// Any finite residual matrix (any scale, ties, one or many columns) gives probabilities
+    /// in [0, 1] and a finite model.
+    #[test]
+    fn probabilities_are_in_unit_interval(
+        values in prop::collection::vec(prop_oneof![
+            -1e3..1e3f64,
+            -1e-6..1e-6f64,
+            Just(0.0),
+            Just(0.5),
+        ], 1..600),
+        cols in 1usize..4,
+        pooled in any::<bool>(),
+        shape in 0u8..3,
+        beta in prop_oneof![Just(0.0), 0.0..10.0f64],
+    ) {
+        let rows = values.len() / cols;
+        prop_assume!(rows >= 1);
+        let residuals = &values[..rows * cols];
+        let estimate = estimate_inliers(residuals, cols, None, beta, &options(pooled, shape)).unwrap();
+        prop_assert_eq!(estimate.probabilities.len(), rows);
+        prop_assert!(estimate.probabilities.iter().all(|p| (0.0..=1.0).contains(p)));
+        prop_assert!((0.0..=1.0).contains(&estimate.prior));
+        for m in &estimate.models {
+            prop_assert!(m.shape.sigma.is_finite() && m.shape.alpha.is_finite() && m.shape.p.is_finite());
+            prop_assert!(m.probability.iter().all(|p| (0.0..=1.0).contains(p)));
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, .. ProptestConfig::default() })]
+
+    /// Whatever the data and the cost, the transform is a proper rotation (det +1,
+    /// orthonormal to 1e-9) with last row 0 0 0 1.
+    #[test]
+    fn transforms_are_proper_rotations(
+        points in prop::collection::vec(prop::array::uniform3(-5.0..5.0f64), 3..80),
+        targets in prop::collection::vec(prop::array::uniform3(-5.0..5.0f64), 3..80),
+        cost in 0usize..4,
+        max_iterations in 1u32..40,
+    ) {
+        let n = points.len().min(targets.len());
+        let cost = [
+            CostFunction::Sie,
+            CostFunction::L2,
+            CostFunction::Lp { p: 0.1 },
+            CostFunction::StudentT { dof: 5.0 },
+        ][cost];
+        let config = RegistrationConfig { cost, max_iterations, ..RegistrationConfig::default() };
+        let pairs = register_correspondences(&points[..n], &targets[..n], None, &config, Hooks::default()).unwrap();
+        prop_assert!(is_proper_rotation(&pairs.transform), "{}", pairs.transform);
+        for metric in [Metric::PointToPoint, Metric::PointToPlane] {
+            let config = RegistrationConfig { metric, ..config.clone() };
+            let clouds = register_clouds(&points, &targets, None, None, &config, Hooks::default()).unwrap();
+            prop_assert!(is_proper_rotation(&clouds.transform), "{metric:?}: {}", clouds.transform);
+            prop_assert!(clouds.probabilities.iter().all(|p| (0.0..=1.0).contains(p)));
+        }
+    }
+}
+
+fn moved(points: &[Point], g: &Matrix4<f64>) -> Vec<Point> {
+    points.iter().map(|p| transform_point(g, p)).collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 8, .. ProptestConfig::default() })]
+
+    /// Expressing both clouds in another frame G gives T' = G·T·G⁻¹ (point-to-plane ICP: the
+    /// plane distance and PCA normals do not depend on the frame).
+    #[test]
+    fn point_to_plane_icp_follows_a_change_of_frame(
+        angles in prop::array::uniform3(-3.0..3.0f64),
+        shift in prop::array::uniform3(-100.0..100.0f64),
+        seed in 0u64..1000,
+    ) {
+        let scene = room_scene(1500, 0.01, seed);
+        let g = rigid(angles[0], angles[1], angles[2], shift[0], shift[1], shift[2]);
+        let config = RegistrationConfig { metric: Metric::PointToPlane, ..RegistrationConfig::default() };
+        let here = register_clouds(&scene.source, &scene.target, None, None, &config, Hooks::default()).unwrap();
+        let (source, target) = (moved(&scene.source, &g), moved(&scene.target, &g));
+        // The initial guess follows the frame change too (identity becomes G·I·G⁻¹ = I).
+        let there = register_clouds(&source, &target, None, None, &config, Hooks::default()).unwrap();
+        let expected = g * here.transform * g.try_inverse().unwrap();
+        let error = (there.transform - expected).abs().max();
+        prop_assert!(error < 1e-6, "frame change moved the result by {error}");
+        prop_assert_eq!(here.stop_reason, there.stop_reason);
+    }
+
+    /// Correspondences with SIE: a translation of both frames changes nothing but the
+    /// translation; a rotation changes the per-axis histograms' samples (the pooled histogram
+    /// is of x, y, z components), so the result agrees only to well within the noise.
+    #[test]
+    fn correspondence_registration_follows_a_change_of_frame(
+        angles in prop::array::uniform3(-3.0..3.0f64),
+        shift in prop::array::uniform3(-100.0..100.0f64),
+        seed in 0u64..1000,
+    ) {
+        let t0 = rigid(0.3, 0.0, 0.0, 0.2, 0.0, 0.0);
+        let data = paper_simulation(1000, 500, 0.01, &t0, seed);
+        let config = RegistrationConfig::default();
+        let here = register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
+        let translate = rigid(0.0, 0.0, 0.0, shift[0], shift[1], shift[2]);
+        let full = rigid(angles[0], angles[1], angles[2], shift[0], shift[1], shift[2]);
+        for (g, tolerance) in [(translate, 1e-6), (full, 2e-3)] {
+            let there = register_correspondences(
+                &moved(&data.source, &g),
+                &moved(&data.target, &g),
+                None,
+                &config,
+                Hooks::default(),
+            )
+            .unwrap();
+            let expected = g * here.transform * g.try_inverse().unwrap();
+            let rotation = (rotation_part(&there.transform) - rotation_part(&expected)).abs().max();
+            // Compare translations at the data (the origin is up to 170 units away).
+            let at_data = there.transform * g.column(3) - expected * g.column(3);
+            let error = rotation.max(at_data.abs().max());
+            prop_assert!(error < tolerance, "error {error} (tolerance {tolerance})");
+        }
+    }
+}
