@@ -1,0 +1,261 @@
+//! What `sie register` reports: the transform as text, the one-screen summary and the JSON
+//! document for scripts.
+use std::fmt::Write as _;
+
+use nalgebra::Matrix4;
+use serde::Serialize;
+use sie::geometry::{rotation_angle, rotation_part, translation_part};
+use sie::{RegistrationResult, StopReason, TraceEntry};
+
+/// Rotation (degrees) and translation distance between an estimate and the ground truth:
+/// the size of truth⁻¹ · estimate.
+pub fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
+    let difference = truth.try_inverse().unwrap_or_else(Matrix4::identity) * estimate;
+    (
+        rotation_angle(&rotation_part(&difference)).to_degrees(),
+        translation_part(&difference).norm(),
+    )
+}
+
+/// Short name of a stop reason (the demo's table, the summary, the JSON report).
+pub fn stop_label(reason: StopReason) -> &'static str {
+    match reason {
+        StopReason::Converged => "converged",
+        StopReason::IterationLimit => "iter-limit",
+        StopReason::Degenerate => "degenerate",
+        StopReason::Cancelled => "cancelled",
+    }
+}
+
+/// Four lines of four numbers, readable back by `--init` / `--ground-truth`. Nine decimals keep
+/// rotation entries to 1e-9.
+pub fn format_transform(t: &Matrix4<f64>, indent: &str) -> String {
+    let mut text = String::new();
+    for r in 0..4 {
+        let row = t.row(r);
+        let _ = writeln!(
+            text,
+            "{indent}{:>13.9} {:>13.9} {:>13.9} {:>13.9}",
+            row[0], row[1], row[2], row[3]
+        );
+    }
+    text
+}
+
+/// About four significant digits, switching to exponent form where fixed decimals would not
+/// show them.
+pub fn significant(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    let magnitude = x.abs().log10().floor();
+    if !(-4.0..6.0).contains(&magnitude) {
+        return format!("{x:.3e}");
+    }
+    let decimals = (3.0 - magnitude).max(0.0) as usize;
+    format!("{x:.decimals$}")
+}
+
+/// One cloud as read.
+#[derive(Serialize)]
+pub struct CloudReport {
+    pub path: String,
+    pub points: usize,
+    /// Points dropped for a non-finite coordinate (`--skip-invalid`).
+    pub skipped_non_finite: usize,
+}
+
+/// Error of the result against `--ground-truth`.
+#[derive(Clone, Copy, Serialize)]
+pub struct GroundTruthError {
+    pub rotation_error_deg: f64,
+    /// Input units.
+    pub translation_error: f64,
+}
+
+#[derive(Serialize)]
+pub struct TraceRow {
+    pub iteration: u32,
+    pub annealing: bool,
+    pub sigma: f64,
+    pub beta: f64,
+    pub penalty: f64,
+    pub inlier_fraction: f64,
+    pub rmse: f64,
+    pub translation_change: f64,
+    pub rotation_change: f64,
+    pub correspondences: usize,
+}
+
+impl From<&TraceEntry> for TraceRow {
+    fn from(e: &TraceEntry) -> Self {
+        TraceRow {
+            iteration: e.iteration,
+            annealing: e.annealing,
+            sigma: e.sigma,
+            beta: e.beta,
+            penalty: e.penalty,
+            inlier_fraction: e.inlier_fraction,
+            rmse: e.rmse,
+            translation_change: e.translation_change,
+            rotation_change: e.rotation_change,
+            correspondences: e.correspondences,
+        }
+    }
+}
+
+/// The `--json` document. Field names are part of the tool's interface.
+#[derive(Serialize)]
+pub struct JsonReport<'a> {
+    pub source: &'a CloudReport,
+    pub target: &'a CloudReport,
+    /// "sie", "cauchy", … as given to `--cost`, and its parameter (null for sie and l2).
+    pub cost: String,
+    pub cost_parameter: Option<f64>,
+    pub metric: &'static str,
+    /// T_target_source, row-major: `transform[row][col]`.
+    pub transform: [[f64; 4]; 4],
+    /// "converged", "iteration_limit", "degenerate" or "cancelled".
+    pub stop_reason: &'static str,
+    pub converged: bool,
+    pub iterations: u32,
+    /// Fitted σ per histogram (residual units: input units with the constant noise model).
+    pub sigma: Vec<f64>,
+    pub beta: Vec<f64>,
+    /// Final k of the asymmetric penalty.
+    pub penalty: f64,
+    pub noise_shape: f64,
+    pub inlier_fraction: f64,
+    /// Inlier-weighted RMS residual, input units.
+    pub rmse: f64,
+    /// Registration time (reading the files excluded).
+    pub seconds: f64,
+    pub read_seconds: f64,
+    pub ground_truth: Option<GroundTruthError>,
+    /// One row per iteration with `--trace`, else empty.
+    pub trace: Vec<TraceRow>,
+}
+
+pub fn json_stop_reason(reason: StopReason) -> &'static str {
+    match reason {
+        StopReason::Converged => "converged",
+        StopReason::IterationLimit => "iteration_limit",
+        StopReason::Degenerate => "degenerate",
+        StopReason::Cancelled => "cancelled",
+    }
+}
+
+pub fn transform_rows(t: &Matrix4<f64>) -> [[f64; 4]; 4] {
+    std::array::from_fn(|r| std::array::from_fn(|c| t[(r, c)]))
+}
+
+/// Everything the summary shows besides the result itself.
+pub struct SummaryContext<'a> {
+    pub source: &'a CloudReport,
+    pub target: &'a CloudReport,
+    /// e.g. "SIE, point-to-plane, constant noise".
+    pub method: String,
+    /// e.g. "normals estimated from 10 neighbours".
+    pub target_note: String,
+    pub units: &'a str,
+    pub seconds: f64,
+    pub read_seconds: f64,
+    pub ground_truth: Option<GroundTruthError>,
+    pub written: Vec<String>,
+}
+
+/// The one-screen summary printed on stderr.
+pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String {
+    let mut text = String::new();
+    let cloud = |c: &CloudReport| {
+        let skipped = match c.skipped_non_finite {
+            0 => String::new(),
+            n => format!(" ({n} non-finite skipped)"),
+        };
+        format!("{}: {} points{skipped}", c.path, c.points)
+    };
+    let _ = writeln!(text, "source   {}", cloud(context.source));
+    let _ = writeln!(
+        text,
+        "target   {}, {}",
+        cloud(context.target),
+        context.target_note
+    );
+    let _ = writeln!(text, "method   {}", context.method);
+    let stop = match result.stop_reason {
+        StopReason::Converged => "converged",
+        StopReason::IterationLimit => "NOT converged: iteration limit reached",
+        StopReason::Degenerate => "NOT converged: degenerate problem (too few or collinear/planar matches)",
+        StopReason::Cancelled => "cancelled (Ctrl-C)",
+    };
+    let _ = writeln!(
+        text,
+        "result   {stop} after {} iterations in {:.3} s (reading {:.3} s)",
+        result.iterations, context.seconds, context.read_seconds
+    );
+    if !result.sigma.is_empty() {
+        let join = |values: &[f64]| {
+            values
+                .iter()
+                .map(|&v| significant(v))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let beta = if result.beta.is_empty() {
+            String::new()
+        } else {
+            format!(", beta {}", join(&result.beta))
+        };
+        let _ = writeln!(
+            text,
+            "         sigma {} ({}){beta}, k {:.2}, noise shape p {:.2}",
+            join(&result.sigma),
+            context.units,
+            result.penalty,
+            result.noise_shape
+        );
+    }
+    let _ = writeln!(
+        text,
+        "         inlier fraction {:.3}, inlier-weighted RMSE {} (input units)",
+        result.inlier_fraction,
+        significant(result.rmse)
+    );
+    if let Some(error) = context.ground_truth {
+        let _ = writeln!(
+            text,
+            "truth    rotation error {:.4} deg, translation error {} (input units)",
+            error.rotation_error_deg,
+            significant(error.translation_error)
+        );
+    }
+    if !context.written.is_empty() {
+        let _ = writeln!(text, "wrote    {}", context.written.join(", "));
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn significant_digits() {
+        assert_eq!(significant(0.0143217), "0.01432");
+        assert_eq!(significant(12.345678), "12.35");
+        assert_eq!(significant(1234.5), "1234");
+        assert_eq!(significant(2.5e-7), "2.500e-7");
+        assert_eq!(significant(0.0), "0");
+    }
+
+    #[test]
+    fn transform_text_reads_back() {
+        let t = Matrix4::new(
+            0.5, -0.25, 0.0, 1.5, 0.25, 0.5, 0.0, -2.0, 0.0, 0.0, 1.0, 1e-9, 0.0, 0.0, 0.0, 1.0,
+        );
+        let text = format_transform(&t, "");
+        let numbers: Vec<f64> = text.split_whitespace().map(|v| v.parse().unwrap()).collect();
+        assert_eq!(numbers, t.transpose().as_slice());
+        assert_eq!(transform_rows(&t)[1][3], -2.0);
+    }
+}

@@ -1,0 +1,548 @@
+//! The `sie` binary end to end: real scan pairs with ground truth, every output, bad input.
+#![cfg(feature = "cli")]
+mod common;
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::{data_dir, pose_error};
+use nalgebra::{Matrix4, Rotation3, Vector3};
+use serde_json::Value;
+use sie::geometry::transform_point;
+use sie::io::{read_cloud, read_transform};
+
+/// bun0 → bun4 from the Stanford bun.conf poses, as listed in pcl-test-bunny/README.md
+/// (p_bun4 = T · p_bun0, the direction sie reports).
+const BUNNY_TRUTH: &str = "\
+ 0.826351  0.004137 -0.563141  0.036838
+-0.0106    0.99991  -0.00821  -0.000257
+ 0.563056  0.012754  0.82632   0.038321
+";
+
+fn sie(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sie"))
+        .args(args)
+        .output()
+        .expect("run the sie binary")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// A fresh scratch folder per test.
+fn scratch(test: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sie-cli-{}-{test}", std::process::id()));
+    let _ = fs::remove_dir_all(&dir);
+    fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn arg(path: &Path) -> &str {
+    path.to_str().expect("UTF-8 temp path")
+}
+
+fn json(output: &Output) -> Value {
+    serde_json::from_slice(&output.stdout).unwrap_or_else(|e| {
+        panic!(
+            "stdout is not JSON ({e}): {}\nstderr: {}",
+            text(&output.stdout),
+            text(&output.stderr)
+        )
+    })
+}
+
+fn json_transform(report: &Value) -> Matrix4<f64> {
+    let rows = report["transform"].as_array().expect("transform rows");
+    assert_eq!(rows.len(), 4);
+    Matrix4::from_fn(|r, c| rows[r][c].as_f64().expect("number"))
+}
+
+/// The 16 numbers of the plain-text transform (stdout or `-o`).
+fn text_transform(text: &str) -> Matrix4<f64> {
+    let values: Vec<f64> = text
+        .split_whitespace()
+        .map(|v| v.parse().expect("number"))
+        .collect();
+    assert_eq!(values.len(), 16, "{text}");
+    Matrix4::from_row_slice(&values)
+}
+
+struct Bunny {
+    source: PathBuf,
+    target: PathBuf,
+    truth: PathBuf,
+}
+
+fn bunny(dir: &Path) -> Option<Bunny> {
+    let data = data_dir()?.join("pcl-test-bunny");
+    let truth = dir.join("bunny_truth.txt");
+    fs::write(&truth, BUNNY_TRUTH).unwrap();
+    Some(Bunny {
+        source: data.join("bun0.pcd"),
+        target: data.join("bun4.pcd"),
+        truth,
+    })
+}
+
+#[test]
+fn bunny_point_to_plane_from_identity_meets_the_tolerance() {
+    let dir = scratch("bunny");
+    let Some(b) = bunny(&dir) else { return };
+    let written = dir.join("T.txt");
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--metric",
+        "point-to-plane",
+        "--ground-truth",
+        arg(&b.truth),
+        "--json",
+        "-o",
+        arg(&written),
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let report = json(&output);
+    let error = &report["ground_truth"];
+    let (rotation, translation) = (
+        error["rotation_error_deg"].as_f64().unwrap(),
+        error["translation_error"].as_f64().unwrap(),
+    );
+    println!("bunny: {rotation:.3} deg, {:.2} mm", translation * 1e3);
+    assert!(
+        rotation < 1.0 && translation < 0.005,
+        "{rotation} deg, {translation} m"
+    );
+    assert_eq!(report["stop_reason"], "converged");
+    assert_eq!(report["converged"], true);
+    assert_eq!(report["source"]["points"], 397);
+    assert_eq!(report["target"]["points"], 361);
+    for key in ["sigma", "beta"] {
+        assert!(report[key][0].as_f64().unwrap() > 0.0, "{key}");
+    }
+    for key in [
+        "iterations",
+        "penalty",
+        "noise_shape",
+        "inlier_fraction",
+        "rmse",
+        "seconds",
+    ] {
+        assert!(report[key].as_f64().unwrap() > 0.0, "{key}");
+    }
+    // The JSON error is the error of the JSON transform, and `-o` holds that transform.
+    let transform = json_transform(&report);
+    let truth = read_transform(&b.truth).unwrap();
+    let (rotation_again, translation_again) = pose_error(&transform, &truth);
+    assert!((rotation_again - rotation).abs() < 1e-9 && (translation_again - translation).abs() < 1e-12);
+    let from_file = text_transform(&fs::read_to_string(&written).unwrap());
+    assert!((from_file - transform).abs().max() < 1e-8);
+}
+
+#[test]
+fn lidar_pair_from_identity_meets_the_tolerance() {
+    let Some(data) = data_dir() else { return };
+    let folder = data.join("small_gicp-data");
+    let output = sie(&[
+        "register",
+        arg(&folder.join("source.ply")),
+        arg(&folder.join("target.ply")),
+        "--ground-truth",
+        arg(&folder.join("T_target_source.txt")),
+        "--json",
+        "-q",
+    ]);
+    let report = json(&output);
+    let rotation = report["ground_truth"]["rotation_error_deg"].as_f64().unwrap();
+    let translation = report["ground_truth"]["translation_error"].as_f64().unwrap();
+    println!(
+        "LiDAR: {rotation:.3} deg, {:.1} mm, {} after {} iterations, {:.2} s",
+        translation * 1e3,
+        report["stop_reason"],
+        report["iterations"],
+        report["seconds"].as_f64().unwrap()
+    );
+    assert!(
+        rotation < 0.5 && translation < 0.05,
+        "{rotation} deg, {translation} m"
+    );
+    // Converged (0) or stopped at the iteration limit (1); never degenerate or an error.
+    let code = output.status.code();
+    assert!(matches!(code, Some(0 | 1)), "{code:?}: {}", text(&output.stderr));
+    assert_ne!(report["stop_reason"], "degenerate");
+    assert_eq!(report["source"]["points"], 69792);
+    assert!(output.stderr.is_empty(), "-q: {}", text(&output.stderr));
+}
+
+#[test]
+fn text_mode_prints_the_transform_on_stdout_and_a_summary_on_stderr() {
+    let dir = scratch("text");
+    let Some(b) = bunny(&dir) else { return };
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--ground-truth",
+        arg(&b.truth),
+    ]);
+    assert_eq!(output.status.code(), Some(0));
+    let transform = text_transform(&text(&output.stdout));
+    assert_eq!(transform.row(3), Matrix4::<f64>::identity().row(3));
+    let (rotation, _) = pose_error(&transform, &read_transform(&b.truth).unwrap());
+    assert!(rotation < 1.0);
+    let summary = text(&output.stderr);
+    for expected in [
+        "397 points",
+        "361 points",
+        "converged after",
+        "sigma",
+        "inlier fraction",
+        "RMSE",
+        "rotation error",
+    ] {
+        assert!(summary.contains(expected), "{expected:?} missing from\n{summary}");
+    }
+    assert!(summary.lines().count() <= 12, "{summary}");
+}
+
+#[test]
+fn trace_prints_one_row_per_iteration() {
+    let dir = scratch("trace");
+    let Some(b) = bunny(&dir) else { return };
+    let output = sie(&["register", arg(&b.source), arg(&b.target), "--trace", "-q"]);
+    assert_eq!(output.status.code(), Some(0));
+    let stderr = text(&output.stderr);
+    let mut lines = stderr.lines();
+    let header = lines.next().unwrap();
+    for column in ["sigma", "beta", "k", "inliers"] {
+        assert!(header.split_whitespace().any(|c| c == column), "{header}");
+    }
+    let rows: Vec<&str> = lines.collect();
+    assert!(rows.len() > 5);
+    for (i, row) in rows.iter().enumerate() {
+        assert_eq!(
+            row.split_whitespace().next(),
+            Some((i + 1).to_string().as_str()),
+            "{row}"
+        );
+    }
+    // The same run in JSON carries the same number of trace rows.
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--trace",
+        "--json",
+        "-q",
+    ]);
+    let report = json(&output);
+    assert_eq!(report["trace"].as_array().unwrap().len(), rows.len());
+    assert_eq!(report["iterations"].as_u64().unwrap() as usize, rows.len());
+}
+
+/// Width and height from a PNG's IHDR chunk.
+fn png_size(bytes: &[u8]) -> (u32, u32) {
+    assert!(bytes.len() > 24 && bytes.starts_with(b"\x89PNG\r\n\x1a\n") && &bytes[12..16] == b"IHDR");
+    let number = |at: usize| u32::from_be_bytes(bytes[at..at + 4].try_into().unwrap());
+    (number(16), number(20))
+}
+
+#[test]
+fn plot_writes_a_png_and_an_svg() {
+    let dir = scratch("plot");
+    let Some(b) = bunny(&dir) else { return };
+    let png = dir.join("fig.png");
+    let svg = dir.join("fig.svg");
+    for path in [&png, &svg] {
+        let output = sie(&[
+            "register",
+            arg(&b.source),
+            arg(&b.target),
+            "--plot",
+            arg(path),
+            "-q",
+        ]);
+        assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    }
+    let bytes = fs::read(&png).unwrap();
+    assert_eq!(png_size(&bytes), (1000, 610));
+    // Bars, curves, legend and labels: far more than a blank image compresses to (~5 kB).
+    assert!(bytes.len() > 20_000, "{} bytes", bytes.len());
+    let svg = fs::read_to_string(&svg).unwrap();
+    assert!(svg.starts_with("<svg"));
+    for label in [
+        "residuals per bin",
+        "P(inlier | r)",
+        "fitted inlier model G",
+        "point-to-plane residual",
+    ] {
+        assert!(svg.contains(label), "{label:?} missing from the SVG");
+    }
+}
+
+#[test]
+fn aligned_cloud_is_the_source_moved_by_the_result() {
+    let dir = scratch("aligned");
+    let Some(b) = bunny(&dir) else { return };
+    let aligned = dir.join("aligned.xyz");
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--aligned",
+        arg(&aligned),
+        "-q",
+    ]);
+    assert_eq!(output.status.code(), Some(0));
+    let transform = text_transform(&text(&output.stdout));
+    let source = read_cloud(&b.source).unwrap().points;
+    let moved = read_cloud(&aligned).unwrap().points;
+    assert_eq!(moved.len(), source.len());
+    for (p, q) in source.iter().zip(&moved) {
+        let expected = transform_point(&transform, p);
+        // stdout has 9 decimals; the file was written from the full-precision transform.
+        assert!(
+            (0..3).all(|k| (expected[k] - q[k]).abs() < 1e-8),
+            "{expected:?} {q:?}"
+        );
+    }
+}
+
+#[test]
+fn init_pose_is_rz_ry_rx_like_the_same_matrix_from_a_file() {
+    let dir = scratch("init");
+    let Some(b) = bunny(&dir) else { return };
+    let (tx, ty, tz, roll, pitch, yaw) = (0.03, -0.002, 0.04, 0.01, -0.55, 0.02);
+    let rotation = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw)
+        * Rotation3::from_axis_angle(&Vector3::y_axis(), pitch)
+        * Rotation3::from_axis_angle(&Vector3::x_axis(), roll);
+    let mut init = rotation.to_homogeneous();
+    init.fixed_view_mut::<3, 1>(0, 3)
+        .copy_from(&Vector3::new(tx, ty, tz));
+    let init_file = dir.join("init.txt");
+    let rows: Vec<String> = (0..4)
+        .map(|r| {
+            (0..4)
+                .map(|c| format!("{:e}", init[(r, c)]))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect();
+    fs::write(&init_file, rows.join("\n")).unwrap();
+
+    let pose = [tx, ty, tz, roll, pitch, yaw].map(|v| v.to_string());
+    let mut with_pose = vec![
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--json",
+        "-q",
+        "--init-pose",
+    ];
+    with_pose.extend(pose.iter().map(String::as_str));
+    let from_pose = json(&sie(&with_pose));
+    let from_file = json(&sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--json",
+        "-q",
+        "--init",
+        arg(&init_file),
+    ]));
+    let difference = (json_transform(&from_pose) - json_transform(&from_file))
+        .abs()
+        .max();
+    assert!(difference < 1e-9, "{difference}");
+    // Started 2° from the truth, it ends within the tolerance too.
+    let (rotation_error, _) = pose_error(&json_transform(&from_pose), &read_transform(&b.truth).unwrap());
+    assert!(rotation_error < 1.0, "{rotation_error}");
+}
+
+#[test]
+fn iteration_limit_exits_1_and_still_writes_everything() {
+    let dir = scratch("limit");
+    let Some(b) = bunny(&dir) else { return };
+    let written = dir.join("T.txt");
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--max-iterations",
+        "3",
+        "--json",
+        "-o",
+        arg(&written),
+    ]);
+    assert_eq!(output.status.code(), Some(1));
+    let report = json(&output);
+    assert_eq!(report["stop_reason"], "iteration_limit");
+    assert_eq!(report["converged"], false);
+    assert_eq!(report["iterations"], 3);
+    assert!(fs::metadata(&written).unwrap().len() > 0);
+    assert!(text(&output.stderr).contains("NOT converged"));
+}
+
+#[test]
+fn baseline_costs_and_options_reach_the_core() {
+    let dir = scratch("options");
+    let Some(b) = bunny(&dir) else { return };
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--cost",
+        "cauchy",
+        "--cost-param",
+        "0.002",
+        "--metric",
+        "point-to-point",
+        "--noise",
+        "quadratic-depth",
+        "--max-correspondences",
+        "200",
+        "--threads",
+        "1",
+        "--json",
+        "-q",
+    ]);
+    assert!(
+        matches!(output.status.code(), Some(0 | 1)),
+        "{}",
+        text(&output.stderr)
+    );
+    let report = json(&output);
+    assert_eq!(report["cost"], "cauchy");
+    assert_eq!(report["cost_parameter"], 0.002);
+    assert_eq!(report["metric"], "point-to-point");
+    // A baseline fits no SIE model: σ reports the given scale, β is empty.
+    assert_eq!(report["beta"].as_array().unwrap().len(), 0);
+}
+
+#[test]
+fn demo_registers_the_synthetic_room() {
+    let output = sie(&["demo", "--points", "3000"]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let stdout = text(&output.stdout);
+    let sie_row = stdout
+        .lines()
+        .find(|l| l.starts_with("SIE (no parameter)"))
+        .unwrap_or_else(|| panic!("no SIE row in\n{stdout}"));
+    let numbers: Vec<f64> = sie_row
+        .split_whitespace()
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    let (rotation_deg, translation_mm) = (numbers[0], numbers[1]);
+    assert!(rotation_deg < 0.5 && translation_mm < 10.0, "{sie_row}");
+    assert!(sie_row.contains("converged"));
+}
+
+/// Each bad input: exit code 2, stdout empty, exactly one stderr line `sie: <file>: <reason>`.
+#[test]
+fn bad_files_give_one_line_and_exit_code_2() {
+    let dir = scratch("bad");
+    let good = dir.join("good.xyz");
+    fs::write(&good, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 0\n1 0 1\n0 1 1\n1 1 1\n").unwrap();
+    let pcd_header = |points: usize, data: &str| {
+        format!(
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {points}\nHEIGHT 1\n\
+             VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {points}\nDATA {data}\n"
+        )
+    };
+    let mut truncated_binary_pcd = pcd_header(10, "binary").into_bytes();
+    truncated_binary_pcd.extend_from_slice(&[0u8; 20]);
+    let truncated_binary_ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n\
+        property float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0\0\0\0\0"
+        .to_vec();
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("truncated.pcd", truncated_binary_pcd, "truncated"),
+        ("truncated.ply", truncated_binary_ply, "truncated"),
+        ("short.pcd", format!("{}1 2 3\n4 5 6\n", pcd_header(3, "ascii")).into_bytes(), "point 2 of 3"),
+        ("fields.pcd", format!("{}1 2 3\n4 5\n", pcd_header(2, "ascii")).into_bytes(), "line has 2 tokens"),
+        ("fields.xyz", b"1 2 3\n4 5\n".to_vec(), "line 2: expected 3 numbers"),
+        ("nan.xyz", b"0 0 0\n1 0 0\nnan 5 6\n0 1 0\n0 0 1\n1 1 0\n".to_vec(), "--skip-invalid"),
+        ("nan.pcd", format!("{}1 2 3\n4 nan 6\n", pcd_header(2, "ascii")).into_bytes(), "non-finite"),
+        ("empty.xyz", Vec::new(), "no points"),
+        ("empty.pcd", pcd_header(0, "ascii").into_bytes(), "no points"),
+        ("empty.ply", b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec(), "no points"),
+        ("cloud.obj", b"v 1 2 3\n".to_vec(), "unknown point-cloud extension"),
+    ];
+    let mut runs: Vec<(String, Vec<&str>, String)> = Vec::new();
+    for (name, bytes, expected) in &cases {
+        fs::write(dir.join(name), bytes).unwrap();
+        runs.push((name.to_string(), vec![], expected.to_string()));
+    }
+    runs.push(("missing.pcd".into(), vec![], "cannot read file".into()));
+    for (name, extra, expected) in &runs {
+        let bad = dir.join(name);
+        // As source and as target.
+        for pair in [[arg(&bad), arg(&good)], [arg(&good), arg(&bad)]] {
+            let mut args = vec!["register", pair[0], pair[1]];
+            args.extend(extra);
+            let output = sie(&args);
+            let stderr = text(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{name}: {stderr}");
+            assert!(output.stdout.is_empty(), "{name}: {}", text(&output.stdout));
+            assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+            assert!(
+                stderr.starts_with("sie: ")
+                    && stderr.contains(name.as_str())
+                    && stderr.contains(expected.as_str()),
+                "{name}: {stderr}"
+            );
+        }
+    }
+    // The hint works: the NaN point is dropped and counted.
+    let output = sie(&[
+        "register",
+        arg(&dir.join("nan.xyz")),
+        arg(&good),
+        "--skip-invalid",
+        "--json",
+        "-q",
+    ]);
+    assert!(
+        matches!(output.status.code(), Some(0 | 1)),
+        "{}",
+        text(&output.stderr)
+    );
+    assert_eq!(json(&output)["source"]["skipped_non_finite"], 1);
+}
+
+#[test]
+fn bad_options_give_one_line_and_exit_code_2() {
+    let dir = scratch("options-bad");
+    let cloud = dir.join("cloud.xyz");
+    fs::write(&cloud, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n").unwrap();
+    let not_rigid = dir.join("scaled.txt");
+    fs::write(&not_rigid, "2 0 0 0\n0 1 0 0\n0 0 1 0\n").unwrap();
+    let c = arg(&cloud);
+    let cases: [(Vec<&str>, &str); 7] = [
+        (vec!["--cost", "cauchy"], "needs --cost-param"),
+        (vec!["--cost-param", "1"], "takes no --cost-param"),
+        (vec!["--plot", "fig.jpg"], ".png or .svg"),
+        (vec!["--plot", "fig.png", "--cost", "l2"], "fits none"),
+        (vec!["--aligned", "out.ply"], ".pcd, .xyz or .txt"),
+        (vec!["-o", "/no/such/folder/T.txt"], "does not exist"),
+        (vec!["--init", arg(&not_rigid)], "initial guess"),
+    ];
+    for (extra, expected) in cases {
+        let mut args = vec!["register", c, c];
+        args.extend(&extra);
+        let output = sie(&args);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{extra:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{extra:?}: {stderr}");
+        assert!(
+            stderr.starts_with("sie: ") && stderr.contains(expected),
+            "{extra:?}: {stderr}"
+        );
+    }
+    // clap's own usage errors use the same code.
+    let output = sie(&["register", c, c, "--init-pose", "1", "2", "3"]);
+    assert_eq!(output.status.code(), Some(2));
+    let help = text(&sie(&["register", "--help"]).stdout);
+    assert!(help.contains("Exit codes") && help.contains("Rz(YAW)"), "{help}");
+}
