@@ -31,12 +31,27 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
-/// A fresh scratch folder per test.
-fn scratch(test: &str) -> PathBuf {
+/// A fresh scratch folder per test, removed when the test ends.
+struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = fs::remove_dir_all(&self.0);
+    }
+}
+
+fn scratch(test: &str) -> Scratch {
     let dir = std::env::temp_dir().join(format!("sie-cli-{}-{test}", std::process::id()));
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(&dir).unwrap();
-    dir
+    Scratch(dir)
 }
 
 fn arg(path: &Path) -> &str {
@@ -421,6 +436,72 @@ fn baseline_costs_and_options_reach_the_core() {
     assert_eq!(report["beta"].as_array().unwrap().len(), 0);
 }
 
+/// A PCD header for float x y z.
+fn pcd_header(points: usize, data: &str) -> String {
+    format!(
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {points}\nHEIGHT 1\n\
+         VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {points}\nDATA {data}\n"
+    )
+}
+
+fn float_bytes(values: impl Iterator<Item = f64>) -> Vec<u8> {
+    values.flat_map(|v| (v as f32).to_le_bytes()).collect()
+}
+
+/// The same bunny pair written as binary PCD, binary_compressed PCD and ascii PLY registers to
+/// the same tolerance as the ascii PCD originals.
+#[test]
+fn pcd_binary_compressed_and_ply_ascii_files_register_alike() {
+    let dir = scratch("formats");
+    let Some(b) = bunny(&dir) else { return };
+    let source = read_cloud(&b.source).unwrap().points;
+    let target = read_cloud(&b.target).unwrap().points;
+
+    let mut binary = pcd_header(source.len(), "binary").into_bytes();
+    binary.extend(float_bytes(source.iter().flatten().copied()));
+    let binary_pcd = dir.join("bun0_binary.pcd");
+    fs::write(&binary_pcd, binary).unwrap();
+
+    // binary_compressed stores the columns one after another, LZF-compressed; literal-only LZF
+    // (a control byte n < 32 announces n + 1 literal bytes) is valid and enough here.
+    let columns = float_bytes((0..3).flat_map(|axis| source.iter().map(move |p| p[axis])));
+    let mut lzf = Vec::new();
+    for chunk in columns.chunks(32) {
+        lzf.push((chunk.len() - 1) as u8);
+        lzf.extend_from_slice(chunk);
+    }
+    let mut compressed = pcd_header(source.len(), "binary_compressed").into_bytes();
+    compressed.extend((lzf.len() as u32).to_le_bytes());
+    compressed.extend((columns.len() as u32).to_le_bytes());
+    compressed.extend(lzf);
+    let compressed_pcd = dir.join("bun0_compressed.pcd");
+    fs::write(&compressed_pcd, compressed).unwrap();
+
+    let mut ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+        target.len()
+    );
+    for p in &target {
+        ply.push_str(&format!("{} {} {}\n", p[0], p[1], p[2]));
+    }
+    let ascii_ply = dir.join("bun4_ascii.ply");
+    fs::write(&ascii_ply, ply).unwrap();
+
+    let truth = read_transform(&b.truth).unwrap();
+    for source_file in [&binary_pcd, &compressed_pcd] {
+        let output = sie(&["register", arg(source_file), arg(&ascii_ply), "--json", "-q"]);
+        assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+        let report = json(&output);
+        assert_eq!(report["source"]["points"], 397);
+        assert_eq!(report["target"]["points"], 361);
+        let (rotation, translation) = pose_error(&json_transform(&report), &truth);
+        assert!(
+            rotation < 1.0 && translation < 0.005,
+            "{source_file:?}: {rotation} deg, {translation} m"
+        );
+    }
+}
+
 #[test]
 fn demo_registers_the_synthetic_room() {
     let output = sie(&["demo", "--points", "3000"]);
@@ -445,12 +526,6 @@ fn bad_files_give_one_line_and_exit_code_2() {
     let dir = scratch("bad");
     let good = dir.join("good.xyz");
     fs::write(&good, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 0\n1 0 1\n0 1 1\n1 1 1\n").unwrap();
-    let pcd_header = |points: usize, data: &str| {
-        format!(
-            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {points}\nHEIGHT 1\n\
-             VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {points}\nDATA {data}\n"
-        )
-    };
     let mut truncated_binary_pcd = pcd_header(10, "binary").into_bytes();
     truncated_binary_pcd.extend_from_slice(&[0u8; 20]);
     let truncated_binary_ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n\
