@@ -28,8 +28,17 @@ trap 'rm -f "$log"' EXIT
 set +e
 cargo test --release --locked 2>&1 | tee "$log"
 status=${PIPESTATUS[0]}
+# CMake package, C/C++ ABI tests under ctest and valgrind, PCL comparison, Python binding
+# (scripts/ci-integration.sh; SIE_SKIP_INTEGRATION=1 leaves it out of a quick local run).
+if [ "${SIE_SKIP_INTEGRATION:-0}" != 1 ]; then
+  echo "== integration (CMake install + find_package, ctest + valgrind, PCL comparison, pytest)"
+  ./scripts/ci-integration.sh 2>&1 | tee -a "$log"
+  integration_status=${PIPESTATUS[0]}
+  [ "$integration_status" -eq 0 ] || status=1
+fi
 set -e
-# One closing line for the whole run, summed over every test binary.
+# One closing line for the whole run, summed over every test binary and the integration steps.
 awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($(i+1) ~ /^passed/) p += $i; if ($(i+1) ~ /^failed/) f += $i } }
+     /^integration: [0-9]+ passed, [0-9]+ failed/ { p += $2; f += $4 }
      END { printf "%d passed, %d failed\n", p, f }' "$log"
 exit "$status"

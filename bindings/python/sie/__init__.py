@@ -1,0 +1,577 @@
+"""Point-cloud registration with Statistical Inlier Estimation (SIE), over libsie's C ABI.
+
+    import sie
+    with sie.Context() as ctx:
+        result = ctx.align(source, target)     # N x 3 arrays -> sie.Registration
+    result.transform                           # 4 x 4, T_target_source: p_target = T @ p_source
+
+Arrays: N x 3 (or N x k, k >= 3; the first three columns are used). float32 or float64 with
+contiguous columns are passed to the library in place (no copy), whatever their row stride,
+e.g. an N x 4 float32 array (stride 16); anything else is converted first. A pair of clouds is
+registered in float32 when both are float32, otherwise in float64.
+
+Failures raise SieError with the library's status and message. A cancelled registration
+(Context.cancel(), or a progress callback returning False) is not a failure: it returns the
+transform reached, with summary.stop_reason == StopReason.CANCELLED. A Context is used by one
+thread at a time (except cancel(), callable from any thread); distinct Contexts are independent.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import enum
+from dataclasses import dataclass
+from typing import Callable, List, Optional, Tuple
+
+import numpy as np
+
+from . import _native
+
+__version__ = "0.1.0"
+
+_lib = _native.load_library()
+
+__all__ = [
+    "Cloud",
+    "Context",
+    "CostFunction",
+    "HistogramMode",
+    "Histogram",
+    "InlierEstimate",
+    "Metric",
+    "Model",
+    "NoiseModel",
+    "Registration",
+    "SieError",
+    "Status",
+    "StopReason",
+    "Summary",
+    "TraceEntry",
+    "library_version",
+]
+
+
+class Status(enum.IntEnum):
+    OK = 0
+    NULL_ARGUMENT = 1
+    INVALID_ARGUMENT = 2
+    NON_FINITE_INPUT = 3
+    TOO_FEW_POINTS = 4
+    CALLBACK_FAILED = 5
+    NO_RESULT = 6
+    BUFFER_TOO_SMALL = 7
+    BUSY = 8
+    CANCELLED = 9
+    PANIC = 100
+
+
+class CostFunction(enum.IntEnum):
+    SIE = 0
+    L2 = 1
+    TRUNCATED_L2 = 2
+    LP = 3
+    STUDENT_T = 4
+    HUBER = 5
+    CAUCHY = 6
+    GEMAN_MCCLURE = 7
+    TUKEY = 8
+
+
+class Metric(enum.IntEnum):
+    POINT_TO_POINT = 0
+    POINT_TO_PLANE = 1
+
+
+class NoiseModel(enum.IntEnum):
+    CONSTANT = 0
+    QUADRATIC_DEPTH = 1
+
+
+class HistogramMode(enum.IntEnum):
+    POOLED = 0
+    PER_COLUMN = 1
+
+
+class StopReason(enum.IntEnum):
+    NONE = 0
+    CONVERGED = 1
+    ITERATION_LIMIT = 2
+    DEGENERATE = 3
+    CANCELLED = 4
+
+
+class Cloud(enum.IntEnum):
+    SOURCE = 0
+    TARGET = 1
+
+
+def _enum_or_int(kind, value):
+    try:
+        return kind(value)
+    except ValueError:
+        return int(value)
+
+
+class SieError(Exception):
+    """A call into libsie failed: `status` (Status) and the library's `message`."""
+
+    def __init__(self, status: int, message: str):
+        self.status = _enum_or_int(Status, status)
+        self.message = message
+        text = _lib.sie_status_str(int(status)).decode()
+        super().__init__(f"{text}: {message}" if message else text)
+
+
+def library_version() -> str:
+    """The loaded library's version, e.g. "0.1.0"."""
+    return _lib.sie_version_string().decode()
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Summary of a registration (sie_summary)."""
+
+    sigma: Tuple[float, float, float]
+    beta: Tuple[float, float, float]
+    penalty: float
+    noise_shape: float
+    inlier_fraction: float
+    rmse: float
+    source_count: int
+    correspondence_count: int
+    iterations: int
+    stop_reason: StopReason
+    histogram_count: int
+    converged: bool
+
+
+@dataclass(frozen=True)
+class Registration:
+    """What Context.align* returns."""
+
+    transform: np.ndarray  # 4 x 4 float64, T_target_source
+    summary: Summary
+    inlier_probabilities: np.ndarray  # per source point (0 for unmatched)
+    correspondences: np.ndarray  # matched target index per source point (-1 if unmatched)
+
+
+@dataclass(frozen=True)
+class Model:
+    """One fitted SIE histogram model (sie_model)."""
+
+    mu: float
+    sigma: float
+    alpha: float
+    shape: float
+    beta: float
+    penalty: float
+    range_lo: float
+    range_hi: float
+    mean_inlier_probability: float
+    bins: int
+    samples_in_range: int
+    peak_found: bool
+
+
+@dataclass(frozen=True)
+class Histogram:
+    model: Model
+    counts: np.ndarray
+    smoothed: np.ndarray
+    model_values: np.ndarray
+    probability: np.ndarray
+
+
+@dataclass(frozen=True)
+class TraceEntry:
+    iteration: int
+    sigma: float
+    beta: float
+    penalty: float
+    inlier_fraction: float
+    rmse: float
+    translation_change: float
+    rotation_change: float
+    correspondences: int
+    annealing: bool
+
+
+@dataclass(frozen=True)
+class InlierEstimate:
+    probabilities: np.ndarray
+    models: List[Model]
+
+
+def _model(raw: _native.sie_model) -> Model:
+    return Model(
+        raw.mu, raw.sigma, raw.alpha, raw.shape, raw.beta, raw.penalty, raw.range_lo, raw.range_hi,
+        raw.mean_inlier_probability, int(raw.bins), int(raw.samples_in_range), bool(raw.peak_found),
+    )
+
+
+class _Points:
+    """An N x k array as the library reads it: pointer, count, byte stride, element type.
+    Holds a reference to the array (the original or a converted copy) while in use."""
+
+    def __init__(self, array: np.ndarray, dtype):
+        self.array = array
+        self.dtype = np.dtype(dtype)
+        self.count = array.shape[0]
+        self.stride = array.strides[0]
+        ctype = ctypes.c_float if self.dtype == np.float32 else ctypes.c_double
+        self.pointer = array.ctypes.data_as(ctypes.POINTER(ctype))
+
+    @property
+    def address(self) -> int:
+        return self.array.ctypes.data
+
+
+def _points(values, name: str, dtype) -> _Points:
+    """`values` as points of `dtype` (float32 or float64) without copying when the memory already
+    has that layout: native-endian `dtype`, contiguous columns, a positive row stride."""
+    array = np.asarray(values)
+    if array.ndim != 2 or array.shape[1] < 3:
+        raise ValueError(f"{name} must be an N x 3 array (N x k, k >= 3, also works); got shape {array.shape}")
+    dtype = np.dtype(dtype)
+    item = dtype.itemsize
+    in_place = (
+        array.dtype == dtype
+        and array.dtype.isnative
+        and array.strides[1] == item
+        and array.strides[0] >= 3 * item
+        and array.strides[0] % item == 0
+        and array.ctypes.data % item == 0
+    )
+    if not in_place:
+        array = np.ascontiguousarray(array[:, :3], dtype=dtype)
+    return _Points(array, dtype)
+
+
+def _cloud_dtype(*arrays) -> type:
+    """float32 when every input is float32 (the float entry points, zero copy), else float64."""
+    return np.float32 if all(np.asarray(a).dtype == np.float32 for a in arrays) else np.float64
+
+
+def _transform_in(init) -> Optional[np.ndarray]:
+    if init is None:
+        return None
+    matrix = np.ascontiguousarray(init, dtype=np.float64)
+    if matrix.shape != (4, 4):
+        raise ValueError(f"init must be a 4 x 4 matrix, got shape {matrix.shape}")
+    return matrix
+
+
+def _double_pointer(array: Optional[np.ndarray]):
+    return None if array is None else array.ctypes.data_as(_native.c_double_p)
+
+
+NoiseCallback = Callable[[Cloud, np.ndarray], "np.typing.ArrayLike"]
+ProgressCallback = Callable[[TraceEntry], Optional[bool]]
+
+
+def _trace_entry(e: _native.sie_trace_entry) -> TraceEntry:
+    return TraceEntry(int(e.iteration), e.sigma, e.beta, e.penalty, e.inlier_fraction, e.rmse,
+                      e.translation_change, e.rotation_change, int(e.correspondences), bool(e.annealing))
+
+
+class Context:
+    """A libsie context: configuration, noise callback, last result.
+
+    Settings may be given as keyword arguments, e.g. Context(metric=Metric.POINT_TO_POINT,
+    max_iterations=50); each maps to the set_<name> method. cost takes CostFunction or
+    (CostFunction, parameter)."""
+
+    def __init__(self, **settings):
+        handle = _lib.sie_context_new()
+        if not handle:
+            raise MemoryError("sie_context_new returned NULL")
+        self._handle = ctypes.c_void_p(handle)
+        # The ctypes callback objects the library points at, and what a callback raised.
+        self._noise_function = None
+        self._progress_function = None
+        self._callback_error: Optional[BaseException] = None
+        for name, value in settings.items():
+            if name == "cost":
+                cost, parameter = value if isinstance(value, tuple) else (value, 0.0)
+                self.set_cost_function(cost, parameter)
+                continue
+            setter = getattr(self, f"set_{name}", None)
+            if setter is None:
+                raise TypeError(f"unknown setting {name!r}")
+            if isinstance(value, tuple):
+                setter(*value)
+            else:
+                setter(value)
+
+    # ---- lifetime ----------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Frees the context (also done by the garbage collector); further calls fail."""
+        handle = getattr(self, "_handle", None)
+        if handle is not None and handle.value:
+            _lib.sie_context_free(handle)
+            self._handle = ctypes.c_void_p(None)
+        # Only after the library no longer points at them.
+        self._noise_function = None
+        self._progress_function = None
+
+    def cancel(self) -> None:
+        """Asks the running registration to stop after its current iteration (or, if none runs,
+        the next one after its first). May be called from any thread while align*() runs."""
+        handle = getattr(self, "_handle", None)
+        if handle is not None and handle.value:
+            _lib.sie_context_cancel(handle)
+
+    def __enter__(self) -> "Context":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        self.close()
+
+    # ---- errors ------------------------------------------------------------------------
+
+    def _check(self, status: int) -> None:
+        if status != Status.OK:
+            raise SieError(status, _lib.sie_context_last_error(self._handle).decode(errors="replace"))
+
+    def _run(self, status: int) -> None:
+        """_check for registrations: re-raises what a callback raised (it made the library return
+        CALLBACK_FAILED or CANCELLED); a plain cancellation is a result, not an error."""
+        error, self._callback_error = self._callback_error, None
+        if error is not None and status in (Status.CALLBACK_FAILED, Status.CANCELLED):
+            raise error
+        if status != Status.CANCELLED:
+            self._check(status)
+
+    # ---- settings ----------------------------------------------------------------------
+
+    def set_cost_function(self, cost: CostFunction, parameter: float = 0.0) -> "Context":
+        self._check(_lib.sie_context_set_cost_function(self._handle, int(cost), float(parameter)))
+        return self
+
+    def set_metric(self, metric: Metric) -> "Context":
+        self._check(_lib.sie_context_set_metric(self._handle, int(metric)))
+        return self
+
+    def set_max_iterations(self, max_iterations: int) -> "Context":
+        self._check(_lib.sie_context_set_max_iterations(self._handle, int(max_iterations)))
+        return self
+
+    def set_convergence(self, translation: float, rotation_radians: float) -> "Context":
+        self._check(_lib.sie_context_set_convergence(self._handle, float(translation), float(rotation_radians)))
+        return self
+
+    def set_noise_model(self, model: NoiseModel) -> "Context":
+        self._check(_lib.sie_context_set_noise_model(self._handle, int(model)))
+        return self
+
+    def set_noise_shape(self, p: float) -> "Context":
+        self._check(_lib.sie_context_set_noise_shape(self._handle, float(p)))
+        return self
+
+    def set_histogram_mode(self, mode: HistogramMode) -> "Context":
+        self._check(_lib.sie_context_set_histogram_mode(self._handle, int(mode)))
+        return self
+
+    def set_regularizer(self, initial_beta: float, shrink: float) -> "Context":
+        self._check(_lib.sie_context_set_regularizer(self._handle, float(initial_beta), float(shrink)))
+        return self
+
+    def set_max_correspondences(self, max_correspondences: int) -> "Context":
+        self._check(_lib.sie_context_set_max_correspondences(self._handle, int(max_correspondences)))
+        return self
+
+    def set_normal_neighbours(self, neighbours: int) -> "Context":
+        self._check(_lib.sie_context_set_normal_neighbours(self._handle, int(neighbours)))
+        return self
+
+    def set_threads(self, threads: int) -> "Context":
+        self._check(_lib.sie_context_set_threads(self._handle, int(threads)))
+        return self
+
+    def set_seed(self, seed: int) -> "Context":
+        self._check(_lib.sie_context_set_seed(self._handle, int(seed)))
+        return self
+
+    def set_trace(self, enabled: bool) -> "Context":
+        self._check(_lib.sie_context_set_trace(self._handle, bool(enabled)))
+        return self
+
+    def set_skip_non_finite(self, enabled: bool) -> "Context":
+        """Drop points with NaN/inf coordinates instead of failing; they get probability 0 and
+        correspondence -1."""
+        self._check(_lib.sie_context_set_skip_non_finite(self._handle, bool(enabled)))
+        return self
+
+    def set_progress_callback(self, function: Optional[ProgressCallback]) -> "Context":
+        """function(entry: TraceEntry) after every iteration, on the calling thread; returning
+        False cancels the registration (None or True continue). Whatever it raises cancels it and
+        is re-raised by align*(). None removes it."""
+        if function is None:
+            self._check(_lib.sie_context_set_progress_callback(self._handle, _native.PROGRESS_FN(), None))
+            self._progress_function = None
+            return self
+
+        def trampoline(_user_data, entry):
+            try:
+                return 1 if function(_trace_entry(entry.contents)) is False else 0
+            except BaseException as error:  # noqa: BLE001 - re-raised by _run after the call
+                self._callback_error = error
+                return 1
+
+        callback = _native.PROGRESS_FN(trampoline)
+        self._check(_lib.sie_context_set_progress_callback(self._handle, callback, None))
+        self._progress_function = callback
+        return self
+
+    def set_noise_callback(self, function: Optional[NoiseCallback]) -> "Context":
+        """Per-point noise: function(cloud, xyz) gets a Cloud and a read-only n x 3 float64 array
+        (that cloud's points in its own frame, valid during the call only) and returns n relative
+        sigmas (finite, > 0). Called once per cloud per registration, on the calling thread.
+        Whatever it raises aborts the registration and is re-raised by align*(). None removes it."""
+        if function is None:
+            self._check(_lib.sie_context_set_noise_callback(self._handle, _native.NOISE_FN(), None))
+            self._noise_function = None
+            return self
+
+        def trampoline(_user_data, cloud, xyz, n, out_sigma):
+            # Nothing may propagate into the library (ctypes would print and return 0).
+            try:
+                points = np.ctypeslib.as_array(xyz, shape=(n, 3)) if n else np.empty((0, 3))
+                points.flags.writeable = False
+                sigma = np.asarray(function(_enum_or_int(Cloud, cloud), points), dtype=np.float64)
+                if sigma.shape != (n,):
+                    raise ValueError(f"the noise callback returned shape {sigma.shape}, expected ({n},)")
+                if n:
+                    np.ctypeslib.as_array(out_sigma, shape=(n,))[:] = sigma
+                return 0
+            except BaseException as error:  # noqa: BLE001 - re-raised by _run after the call
+                self._callback_error = error
+                return 1
+
+        callback = _native.NOISE_FN(trampoline)
+        self._check(_lib.sie_context_set_noise_callback(self._handle, callback, None))
+        self._noise_function = callback  # the library holds a pointer to it: keep it alive
+        return self
+
+    # ---- registration ------------------------------------------------------------------
+
+    def align(self, source, target, init=None, target_normals=None) -> Registration:
+        """ICP of source onto target. target_normals (N x 3, unit or 0 0 0 for none) replaces
+        the estimated normals of point-to-plane; it uses the float32 entry point."""
+        transform_in = _transform_in(init)
+        out = np.empty((4, 4), dtype=np.float64)
+        if target_normals is not None:
+            s = _points(source, "source", np.float32)
+            t = _points(target, "target", np.float32)
+            n = _points(target_normals, "target_normals", np.float32)
+            if n.count != t.count:
+                raise ValueError(f"target_normals has {n.count} rows for {t.count} target points")
+            status = _lib.sie_context_register_with_normals(
+                self._handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride, n.pointer, n.stride,
+                _double_pointer(transform_in), _double_pointer(out),
+            )
+        else:
+            dtype = _cloud_dtype(source, target)
+            s = _points(source, "source", dtype)
+            t = _points(target, "target", dtype)
+            register = _lib.sie_context_register if dtype == np.float32 else _lib.sie_context_register_d
+            status = register(
+                self._handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride,
+                _double_pointer(transform_in), _double_pointer(out),
+            )
+        self._run(status)
+        return self._registration(out)
+
+    def align_correspondences(self, source, target, init=None) -> Registration:
+        """Matched pairs: source[i] corresponds to target[i]; always point-to-point."""
+        dtype = _cloud_dtype(source, target)
+        s = _points(source, "source", dtype)
+        t = _points(target, "target", dtype)
+        if s.count != t.count:
+            raise ValueError(f"source has {s.count} points and target {t.count}; pairs need equal counts")
+        transform_in = _transform_in(init)
+        out = np.empty((4, 4), dtype=np.float64)
+        register = (
+            _lib.sie_context_register_correspondences
+            if dtype == np.float32
+            else _lib.sie_context_register_correspondences_d
+        )
+        status = register(
+            self._handle, s.pointer, s.stride, t.pointer, t.stride, s.count, _double_pointer(transform_in),
+            _double_pointer(out),
+        )
+        self._run(status)
+        return self._registration(out)
+
+    def _registration(self, transform: np.ndarray) -> Registration:
+        return Registration(transform, self.summary(), self.inlier_probabilities(), self.correspondences())
+
+    # ---- results of the last successful registration -----------------------------------
+
+    def summary(self) -> Summary:
+        raw = _native.sie_summary()
+        self._check(_lib.sie_context_get_summary(self._handle, ctypes.byref(raw)))
+        return Summary(
+            tuple(raw.sigma), tuple(raw.beta), raw.penalty, raw.noise_shape, raw.inlier_fraction, raw.rmse,
+            int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
+            _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
+        )
+
+    def _array(self, getter, dtype, ctype) -> np.ndarray:
+        length = ctypes.c_size_t(0)
+        self._check(getter(self._handle, None, 0, ctypes.byref(length)))
+        values = np.empty(length.value, dtype=dtype)
+        self._check(getter(self._handle, values.ctypes.data_as(ctypes.POINTER(ctype)), values.size,
+                           ctypes.byref(length)))
+        return values[: length.value]
+
+    def inlier_probabilities(self) -> np.ndarray:
+        return self._array(_lib.sie_context_get_inlier_probabilities, np.float64, ctypes.c_double)
+
+    def correspondences(self) -> np.ndarray:
+        return self._array(_lib.sie_context_get_correspondences, np.int64, ctypes.c_int64)
+
+    def trace(self) -> List[TraceEntry]:
+        length = ctypes.c_size_t(0)
+        self._check(_lib.sie_context_get_trace(self._handle, None, 0, ctypes.byref(length)))
+        entries = (_native.sie_trace_entry * length.value)()
+        self._check(_lib.sie_context_get_trace(self._handle, entries, length.value, ctypes.byref(length)))
+        return [_trace_entry(e) for e in entries[: length.value]]
+
+    def histogram(self, index: int = 0) -> Histogram:
+        model = _native.sie_model()
+        self._check(_lib.sie_context_get_histogram(self._handle, index, ctypes.byref(model), None, None, None,
+                                                   None, 0))
+        arrays = [np.empty(int(model.bins), dtype=np.float64) for _ in range(4)]
+        pointers = [_double_pointer(a) for a in arrays]
+        self._check(_lib.sie_context_get_histogram(self._handle, index, ctypes.byref(model), *pointers,
+                                                   int(model.bins)))
+        return Histogram(_model(model), *arrays)
+
+    # ---- the estimator alone -----------------------------------------------------------
+
+    def estimate_inliers(self, residuals, row_scales=None, beta: float = 0.0) -> InlierEstimate:
+        """P(inlier) per row of a residual matrix (rows x cols, or a 1-D vector of rows x 1)."""
+        matrix = np.ascontiguousarray(residuals, dtype=np.float64)
+        if matrix.ndim == 1:
+            matrix = matrix.reshape(-1, 1)
+        if matrix.ndim != 2:
+            raise ValueError(f"residuals must be 1-D or 2-D, got shape {matrix.shape}")
+        rows, cols = matrix.shape
+        scales = None
+        if row_scales is not None:
+            scales = np.ascontiguousarray(row_scales, dtype=np.float64)
+            if scales.shape != (rows,):
+                raise ValueError(f"row_scales must have shape ({rows},), got {scales.shape}")
+        probabilities = np.empty(rows, dtype=np.float64)
+        models = (_native.sie_model * max(cols, 1))()
+        count = ctypes.c_size_t(0)
+        self._check(_lib.sie_estimate_inliers(
+            self._handle, _double_pointer(matrix), rows, cols, _double_pointer(scales), float(beta),
+            _double_pointer(probabilities), models, len(models), ctypes.byref(count),
+        ))
+        return InlierEstimate(probabilities, [_model(m) for m in models[: count.value]])

@@ -1,0 +1,578 @@
+/*
+ * sie.hpp: header-only C++17 wrapper over the C ABI of libsie (sie.h).
+ *
+ *   sie::Context ctx;                                   // SIE cost, point-to-plane, no threshold
+ *   sie::Transform T = ctx.align({src, n_src, 16}, {tgt, n_tgt, 16});   // row-major T_target_source
+ *   sie::Summary s = ctx.summary();                     // iterations, stop reason, sigma, ...
+ *
+ * - sie::Context owns a sie_context: move-only, freed in the destructor.
+ * - Every failing call throws sie::Error carrying the sie::Status and the library's message.
+ * - Inputs are strided views (sie::PointsView: pointer, count, byte stride), never copied here.
+ * - Noise and progress callbacks are std::functions; exceptions they throw never reach the
+ *   library: a noexcept trampoline catches them, and align() rethrows them once the library has
+ *   returned.
+ * - A cancelled registration (cancel() or a progress callback returning false) is not an error:
+ *   align() returns the transform reached and summary().stop_reason is StopReason::Cancelled.
+ *
+ * Thread safety is the C library's: a Context is used by one thread at a time; distinct
+ * Contexts are independent.
+ */
+#ifndef SIE_HPP
+#define SIE_HPP
+
+#include "sie.h"
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <exception>
+#include <functional>
+#include <memory>
+#include <new>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+#include <utility>
+#include <vector>
+
+#if __cplusplus >= 202002L && defined(__has_include)
+#if __has_include(<span>)
+#include <span>
+#define SIE_HPP_HAS_SPAN 1
+#endif
+#endif
+
+namespace sie {
+
+/** Status of a call (sie_status); Ok is never thrown. */
+enum class Status : std::uint32_t {
+    Ok = SIE_STATUS_OK,
+    NullArgument = SIE_STATUS_NULL_ARGUMENT,
+    InvalidArgument = SIE_STATUS_INVALID_ARGUMENT,
+    NonFiniteInput = SIE_STATUS_NON_FINITE_INPUT,
+    TooFewPoints = SIE_STATUS_TOO_FEW_POINTS,
+    CallbackFailed = SIE_STATUS_CALLBACK_FAILED,
+    NoResult = SIE_STATUS_NO_RESULT,
+    BufferTooSmall = SIE_STATUS_BUFFER_TOO_SMALL,
+    Busy = SIE_STATUS_BUSY,
+    Cancelled = SIE_STATUS_CANCELLED, // not thrown by align(): the result is kept (StopReason::Cancelled)
+    Panic = SIE_STATUS_PANIC,
+};
+
+enum class CostFunction : std::uint32_t {
+    Sie = SIE_COST_FUNCTION_SIE,
+    L2 = SIE_COST_FUNCTION_L2,
+    TruncatedL2 = SIE_COST_FUNCTION_TRUNCATED_L2,
+    Lp = SIE_COST_FUNCTION_LP,
+    StudentT = SIE_COST_FUNCTION_STUDENT_T,
+    Huber = SIE_COST_FUNCTION_HUBER,
+    Cauchy = SIE_COST_FUNCTION_CAUCHY,
+    GemanMcClure = SIE_COST_FUNCTION_GEMAN_MCCLURE,
+    Tukey = SIE_COST_FUNCTION_TUKEY,
+};
+
+enum class Metric : std::uint32_t {
+    PointToPoint = SIE_METRIC_POINT_TO_POINT,
+    PointToPlane = SIE_METRIC_POINT_TO_PLANE,
+};
+
+enum class NoiseModel : std::uint32_t {
+    Constant = SIE_NOISE_MODEL_CONSTANT,
+    QuadraticDepth = SIE_NOISE_MODEL_QUADRATIC_DEPTH,
+};
+
+enum class HistogramMode : std::uint32_t {
+    Pooled = SIE_HISTOGRAM_MODE_POOLED,
+    PerColumn = SIE_HISTOGRAM_MODE_PER_COLUMN,
+};
+
+enum class StopReason : std::uint32_t {
+    None = SIE_STOP_REASON_NONE,
+    Converged = SIE_STOP_REASON_CONVERGED,
+    IterationLimit = SIE_STOP_REASON_ITERATION_LIMIT,
+    Degenerate = SIE_STOP_REASON_DEGENERATE,
+    Cancelled = SIE_STOP_REASON_CANCELLED,
+};
+
+enum class Cloud : std::uint32_t {
+    Source = SIE_CLOUD_SOURCE,
+    Target = SIE_CLOUD_TARGET,
+};
+
+/** The library's static description of a status ("unknown status" for other values). */
+inline const char *to_string(Status status) noexcept {
+    return sie_status_str(static_cast<std::uint32_t>(status));
+}
+
+inline const char *to_string(StopReason reason) noexcept {
+    switch (reason) {
+    case StopReason::None:
+        return "none";
+    case StopReason::Converged:
+        return "converged";
+    case StopReason::IterationLimit:
+        return "iteration limit";
+    case StopReason::Degenerate:
+        return "degenerate";
+    case StopReason::Cancelled:
+        return "cancelled";
+    }
+    return "unknown";
+}
+
+/** A failed call: the status and the library's detail message (sie_context_last_error). */
+class Error : public std::runtime_error {
+  public:
+    Error(Status status, const std::string &detail)
+        : std::runtime_error(std::string("sie: ") + to_string(status) + (detail.empty() ? "" : ": ") + detail),
+          status_(status), detail_(detail) {}
+
+    Status status() const noexcept { return status_; }
+    /** The message of sie_context_last_error at the time of the failure. */
+    const std::string &detail() const noexcept { return detail_; }
+
+  private:
+    Status status_;
+    std::string detail_;
+};
+
+/** The loaded libsie has another major.minor version than this header (a stale library). */
+class VersionMismatch : public std::runtime_error {
+  public:
+    using std::runtime_error::runtime_error;
+};
+
+/** A rigid transform, 16 doubles in ROW-major order (T[4*row + col]), as in the C API. */
+using Transform = std::array<double, 16>;
+
+inline constexpr Transform identity_transform() noexcept {
+    return {1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0};
+}
+
+/**
+ * A read-only view of `count` points of three Scalars each; point i starts `i * stride_bytes`
+ * bytes after `xyz` (0 = packed). Nothing is copied: the memory must outlive the call using it.
+ */
+template <typename Scalar> struct PointsView {
+    static_assert(std::is_same<Scalar, float>::value || std::is_same<Scalar, double>::value,
+                  "sie takes float or double coordinates");
+
+    const Scalar *xyz = nullptr;
+    std::size_t count = 0;
+    std::size_t stride_bytes = 0;
+
+    constexpr PointsView() noexcept = default;
+    constexpr PointsView(const Scalar *xyz_, std::size_t count_, std::size_t stride_bytes_ = 0) noexcept
+        : xyz(xyz_), count(count_), stride_bytes(stride_bytes_) {}
+    /** Packed triples, e.g. std::vector<std::array<float, 3>>. */
+    PointsView(const std::vector<std::array<Scalar, 3>> &points) noexcept // NOLINT: implicit on purpose
+        : xyz(points.empty() ? nullptr : points.front().data()), count(points.size()), stride_bytes(sizeof(points[0])) {
+    }
+#ifdef SIE_HPP_HAS_SPAN
+    PointsView(std::span<const std::array<Scalar, 3>> points) noexcept // NOLINT: implicit on purpose
+        : xyz(points.empty() ? nullptr : points.front().data()), count(points.size()), stride_bytes(sizeof(points[0])) {
+    }
+#endif
+};
+
+using Points = PointsView<float>;
+using PointsD = PointsView<double>;
+
+/** Summary of the last registration (sie_summary with a typed stop reason). */
+struct Summary {
+    std::array<double, 3> sigma{};
+    std::array<double, 3> beta{};
+    double penalty = 0.0;
+    double noise_shape = 0.0;
+    double inlier_fraction = 0.0;
+    double rmse = 0.0;
+    std::uint64_t source_count = 0;
+    std::uint64_t correspondence_count = 0;
+    std::uint32_t iterations = 0;
+    StopReason stop_reason = StopReason::None;
+    std::uint32_t histogram_count = 0;
+    bool converged = false;
+};
+
+/** One fitted SIE histogram and its per-bin arrays (sie_context_get_histogram). */
+struct Histogram {
+    sie_model model{};
+    std::vector<double> counts;
+    std::vector<double> smoothed;
+    std::vector<double> model_values;
+    std::vector<double> probability;
+};
+
+using TraceEntry = sie_trace_entry;
+
+/** Result of Context::estimate_inliers: P(inlier) per row and one model per histogram. */
+struct InlierEstimate {
+    std::vector<double> probabilities;
+    std::vector<sie_model> models;
+};
+
+/**
+ * Per-point noise: fill sigma[i] (finite, > 0; pre-filled with 1) for the n points in xyz
+ * (3*n doubles, in that cloud's own frame). Called once per cloud per registration, on the
+ * thread calling align(). Throw to abort the registration: align() rethrows the exception.
+ */
+using NoiseFunction = std::function<void(Cloud cloud, const double *xyz, std::size_t n, double *sigma)>;
+
+/**
+ * Per-iteration progress: receives the iteration's trace entry (valid during the call) on the
+ * thread calling align(). Return false to cancel the registration (it then stops with the
+ * transform reached); throw to cancel it and have align() rethrow the exception.
+ */
+using ProgressFunction = std::function<bool(const TraceEntry &entry)>;
+
+class Context {
+  public:
+    /** A context with the default configuration. Throws VersionMismatch for a stale library. */
+    Context() {
+        // Within 0.x every minor version may change the ABI, so major.minor must match.
+        if ((sie_version_number() >> 8) != (SIE_VERSION_NUMBER >> 8)) {
+            throw VersionMismatch(std::string("sie.hpp is version ") + SIE_VERSION_STRING +
+                                  " but the loaded libsie is " + sie_version_string());
+        }
+        context_.reset(sie_context_new());
+        if (!context_) {
+            throw std::bad_alloc();
+        }
+    }
+
+    Context(Context &&) noexcept = default;
+    Context &operator=(Context &&) noexcept = default;
+    Context(const Context &) = delete;
+    Context &operator=(const Context &) = delete;
+    ~Context() = default;
+
+    /** The C handle, for functions this wrapper does not cover (still owned here). */
+    sie_context *c_api() noexcept { return context_.get(); }
+    const sie_context *c_api() const noexcept { return context_.get(); }
+
+    /** Gives up ownership; the caller frees it with sie_context_free. C++ callbacks are removed
+     * first, since their holders stay with this object. */
+    sie_context *release() noexcept {
+        if (context_ && noise_) {
+            (void)sie_context_set_noise_callback(context_.get(), nullptr, nullptr);
+        }
+        if (context_ && progress_) {
+            (void)sie_context_set_progress_callback(context_.get(), nullptr, nullptr);
+        }
+        noise_.reset();
+        progress_.reset();
+        return context_.release();
+    }
+
+    /** Asks the running registration to stop after its current iteration (or, if none runs,
+     * the next one after its first). The one member that may be called from another thread
+     * while align() runs; also safe in a signal handler. */
+    void cancel() const noexcept { (void)sie_context_cancel(context_.get()); }
+
+    // ---- configuration (each returns *this, so calls chain) --------------------------------
+
+    Context &set_cost_function(CostFunction cost, double parameter = 0.0) {
+        check(sie_context_set_cost_function(get(), static_cast<std::uint32_t>(cost), parameter));
+        return *this;
+    }
+    Context &set_metric(Metric metric) {
+        check(sie_context_set_metric(get(), static_cast<std::uint32_t>(metric)));
+        return *this;
+    }
+    Context &set_max_iterations(std::uint32_t max_iterations) {
+        check(sie_context_set_max_iterations(get(), max_iterations));
+        return *this;
+    }
+    Context &set_convergence(double translation, double rotation_radians) {
+        check(sie_context_set_convergence(get(), translation, rotation_radians));
+        return *this;
+    }
+    Context &set_noise_model(NoiseModel model) {
+        check(sie_context_set_noise_model(get(), static_cast<std::uint32_t>(model)));
+        return *this;
+    }
+    Context &set_noise_shape(double p) {
+        check(sie_context_set_noise_shape(get(), p));
+        return *this;
+    }
+    Context &set_histogram_mode(HistogramMode mode) {
+        check(sie_context_set_histogram_mode(get(), static_cast<std::uint32_t>(mode)));
+        return *this;
+    }
+    Context &set_regularizer(double initial_beta, double shrink) {
+        check(sie_context_set_regularizer(get(), initial_beta, shrink));
+        return *this;
+    }
+    Context &set_max_correspondences(std::size_t max_correspondences) {
+        check(sie_context_set_max_correspondences(get(), max_correspondences));
+        return *this;
+    }
+    Context &set_normal_neighbours(std::uint32_t neighbours) {
+        check(sie_context_set_normal_neighbours(get(), neighbours));
+        return *this;
+    }
+    Context &set_threads(std::uint32_t threads) {
+        check(sie_context_set_threads(get(), threads));
+        return *this;
+    }
+    Context &set_seed(std::uint64_t seed) {
+        check(sie_context_set_seed(get(), seed));
+        return *this;
+    }
+    Context &set_trace(bool enabled) {
+        check(sie_context_set_trace(get(), enabled));
+        return *this;
+    }
+    /** Drop points with a NaN/infinite coordinate instead of failing (e.g. non-dense PCL clouds);
+     * they get inlier probability 0 and correspondence -1. */
+    Context &set_skip_non_finite(bool enabled) {
+        check(sie_context_set_skip_non_finite(get(), enabled));
+        return *this;
+    }
+
+    /** Installs a per-point noise callback (an empty function removes it). The context keeps
+     * the function alive for as long as it is installed, also across moves. */
+    Context &set_noise_callback(NoiseFunction function) {
+        if (!function) {
+            return clear_noise_callback();
+        }
+        auto holder = std::make_unique<Holder<NoiseFunction>>();
+        holder->function = std::move(function);
+        check(sie_context_set_noise_callback(get(), &noise_trampoline, holder.get()));
+        // The library now points at the new holder; the old one (if any) can go.
+        noise_ = std::move(holder);
+        return *this;
+    }
+
+    /** Removes the noise callback; the built-in noise model applies again. */
+    Context &clear_noise_callback() {
+        check(sie_context_set_noise_callback(get(), nullptr, nullptr));
+        noise_.reset();
+        return *this;
+    }
+
+    /** Installs a per-iteration progress callback (an empty function removes it); kept alive
+     * by the context like the noise callback. */
+    Context &set_progress_callback(ProgressFunction function) {
+        if (!function) {
+            return clear_progress_callback();
+        }
+        auto holder = std::make_unique<Holder<ProgressFunction>>();
+        holder->function = std::move(function);
+        check(sie_context_set_progress_callback(get(), &progress_trampoline, holder.get()));
+        progress_ = std::move(holder);
+        return *this;
+    }
+
+    Context &clear_progress_callback() {
+        check(sie_context_set_progress_callback(get(), nullptr, nullptr));
+        progress_.reset();
+        return *this;
+    }
+
+    // ---- registration: each returns T_target_source (p_target = T * p_source) ------------
+
+    /** ICP of source onto target (float clouds). */
+    Transform align(Points source, Points target, const Transform &init = identity_transform()) {
+        Transform out{};
+        run(sie_context_register(get(), source.xyz, source.count, source.stride_bytes, target.xyz, target.count,
+                                 target.stride_bytes, init.data(), out.data()));
+        return out;
+    }
+
+    /** ICP of source onto target (double clouds). */
+    Transform align(PointsD source, PointsD target, const Transform &init = identity_transform()) {
+        Transform out{};
+        run(sie_context_register_d(get(), source.xyz, source.count, source.stride_bytes, target.xyz, target.count,
+                                   target.stride_bytes, init.data(), out.data()));
+        return out;
+    }
+
+    /** ICP with one unit normal per target point (0 0 0 = none) for point-to-plane. */
+    Transform align_with_normals(Points source, Points target, Points target_normals,
+                                 const Transform &init = identity_transform()) {
+        if (target_normals.count != target.count) {
+            throw Error(Status::InvalidArgument, "target_normals has " + std::to_string(target_normals.count) +
+                                                     " entries for " + std::to_string(target.count) +
+                                                     " target points");
+        }
+        Transform out{};
+        run(sie_context_register_with_normals(get(), source.xyz, source.count, source.stride_bytes, target.xyz,
+                                              target.count, target.stride_bytes, target_normals.xyz,
+                                              target_normals.stride_bytes, init.data(), out.data()));
+        return out;
+    }
+
+    /** Matched pairs: source[i] corresponds to target[i] (point-to-point). */
+    Transform align_correspondences(Points source, Points target, const Transform &init = identity_transform()) {
+        check_same_count(source.count, target.count);
+        Transform out{};
+        run(sie_context_register_correspondences(get(), source.xyz, source.stride_bytes, target.xyz,
+                                                 target.stride_bytes, source.count, init.data(), out.data()));
+        return out;
+    }
+
+    Transform align_correspondences(PointsD source, PointsD target, const Transform &init = identity_transform()) {
+        check_same_count(source.count, target.count);
+        Transform out{};
+        run(sie_context_register_correspondences_d(get(), source.xyz, source.stride_bytes, target.xyz,
+                                                   target.stride_bytes, source.count, init.data(), out.data()));
+        return out;
+    }
+
+    // ---- results of the last successful registration (Status::NoResult otherwise) ----------
+
+    Summary summary() const {
+        sie_summary raw{};
+        check(sie_context_get_summary(get(), &raw));
+        Summary s;
+        for (std::size_t i = 0; i < 3; ++i) {
+            s.sigma[i] = raw.sigma[i];
+            s.beta[i] = raw.beta[i];
+        }
+        s.penalty = raw.penalty;
+        s.noise_shape = raw.noise_shape;
+        s.inlier_fraction = raw.inlier_fraction;
+        s.rmse = raw.rmse;
+        s.source_count = raw.source_count;
+        s.correspondence_count = raw.correspondence_count;
+        s.iterations = raw.iterations;
+        s.stop_reason = static_cast<StopReason>(raw.stop_reason);
+        s.histogram_count = raw.histogram_count;
+        s.converged = raw.converged;
+        return s;
+    }
+
+    /** P(inlier) per source point (0 for unmatched points). */
+    std::vector<double> inlier_probabilities() const {
+        return read_array<double>(&sie_context_get_inlier_probabilities);
+    }
+
+    /** Matched target index per source point (-1 if unmatched). */
+    std::vector<std::int64_t> correspondences() const {
+        return read_array<std::int64_t>(&sie_context_get_correspondences);
+    }
+
+    /** Per-iteration trace (empty unless set_trace(true) was called before the registration). */
+    std::vector<TraceEntry> trace() const { return read_array<TraceEntry>(&sie_context_get_trace); }
+
+    /** SIE histogram `index` (< summary().histogram_count) with its per-bin arrays. */
+    Histogram histogram(std::size_t index) const {
+        Histogram h;
+        check(sie_context_get_histogram(get(), index, &h.model, nullptr, nullptr, nullptr, nullptr, 0));
+        const auto bins = static_cast<std::size_t>(h.model.bins);
+        h.counts.resize(bins);
+        h.smoothed.resize(bins);
+        h.model_values.resize(bins);
+        h.probability.resize(bins);
+        check(sie_context_get_histogram(get(), index, &h.model, h.counts.data(), h.smoothed.data(),
+                                        h.model_values.data(), h.probability.data(), bins));
+        return h;
+    }
+
+    // ---- the estimator alone ---------------------------------------------------------------
+
+    /** P(inlier) per row of a rows x cols row-major residual matrix; row_scales (nullable, rows
+     * values) divides each row first. */
+    InlierEstimate estimate_inliers(const double *residuals, std::size_t rows, std::size_t cols,
+                                    const double *row_scales = nullptr, double beta = 0.0) {
+        InlierEstimate estimate;
+        estimate.probabilities.resize(rows);
+        // Pooled mode fits one histogram, per-column mode one per column.
+        estimate.models.resize(cols == 0 ? 1 : cols);
+        std::size_t model_count = 0;
+        check(sie_estimate_inliers(get(), residuals, rows, cols, row_scales, beta, estimate.probabilities.data(),
+                                   estimate.models.data(), estimate.models.size(), &model_count));
+        estimate.models.resize(model_count);
+        return estimate;
+    }
+
+  private:
+    struct Free {
+        void operator()(sie_context *context) const noexcept { sie_context_free(context); }
+    };
+
+    template <typename Function> struct Holder {
+        Function function;
+        std::exception_ptr pending; // what the function threw during the current registration
+    };
+
+    // The trampolines run on the library's side of the boundary: nothing may propagate out.
+    static std::int32_t noise_trampoline(void *user_data, std::uint32_t cloud, const double *xyz, std::size_t n,
+                                         double *out_sigma) noexcept {
+        auto *holder = static_cast<Holder<NoiseFunction> *>(user_data);
+        try {
+            holder->function(static_cast<Cloud>(cloud), xyz, n, out_sigma);
+            return 0;
+        } catch (...) {
+            holder->pending = std::current_exception();
+            return 1;
+        }
+    }
+
+    static std::int32_t progress_trampoline(void *user_data, const sie_trace_entry *entry) noexcept {
+        auto *holder = static_cast<Holder<ProgressFunction> *>(user_data);
+        try {
+            return holder->function(*entry) ? 0 : 1;
+        } catch (...) {
+            holder->pending = std::current_exception();
+            return 1;
+        }
+    }
+
+    template <typename Function> static std::exception_ptr take_pending(const std::unique_ptr<Holder<Function>> &h) {
+        return h ? std::exchange(h->pending, nullptr) : nullptr;
+    }
+
+    sie_context *get() const noexcept { return context_.get(); }
+
+    void check(sie_status status) const {
+        if (status != SIE_STATUS_OK) {
+            // The message lives until the next call on the context: copy it now.
+            throw Error(static_cast<Status>(status), sie_context_last_error(get()));
+        }
+    }
+
+    /** For registrations: rethrows what a callback threw during this call; a cancellation is
+     * a result, not an error; anything else goes through check. */
+    void run(sie_status status) {
+        const std::exception_ptr noise_thrown = take_pending(noise_);
+        const std::exception_ptr progress_thrown = take_pending(progress_);
+        if (status == SIE_STATUS_CALLBACK_FAILED && noise_thrown) {
+            std::rethrow_exception(noise_thrown);
+        }
+        if (status == SIE_STATUS_CANCELLED) {
+            if (progress_thrown) {
+                std::rethrow_exception(progress_thrown);
+            }
+            return;
+        }
+        check(status);
+    }
+
+    static void check_same_count(std::size_t source_count, std::size_t target_count) {
+        if (source_count != target_count) {
+            throw Error(Status::InvalidArgument, "correspondences need as many source points (" +
+                                                     std::to_string(source_count) + ") as target points (" +
+                                                     std::to_string(target_count) + ")");
+        }
+    }
+
+    template <typename T, typename Getter> std::vector<T> read_array(Getter getter) const {
+        std::size_t length = 0;
+        check(getter(get(), nullptr, 0, &length));
+        std::vector<T> values(length);
+        check(getter(get(), values.data(), values.size(), &length));
+        values.resize(length);
+        return values;
+    }
+
+    // Declared before context_ so that they are destroyed after it: the library points at them.
+    std::unique_ptr<Holder<NoiseFunction>> noise_;
+    std::unique_ptr<Holder<ProgressFunction>> progress_;
+    std::unique_ptr<sie_context, Free> context_;
+};
+
+} // namespace sie
+
+#endif /* SIE_HPP */

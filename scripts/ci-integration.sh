@@ -1,0 +1,176 @@
+#!/usr/bin/env bash
+# The integration half of the test suite (called by scripts/test-all.sh): builds libsie with
+# CMake, runs the C and C++ ABI tests with ctest (the C++ one also under valgrind), installs into
+# a staging prefix, builds a separate consumer project and examples-cpp against that install
+# (find_package + pkg-config), runs the PCL comparison on the bunny and LiDAR pairs with the
+# accuracy checks, and runs the Python binding's pytest suite.
+#
+# Everything is built under build/ci (override with SIE_INTEGRATION_BUILD). The closing line is
+# "integration: N passed, M failed" (ctest and pytest counts plus one per other step); the exit
+# status is non-zero when anything failed.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+build=${SIE_INTEGRATION_BUILD:-$root/build/ci}
+prefix=$build/install
+data=${SIE_DATA_DIR:-$(cd .. && pwd)/shared/data}
+jobs=$(nproc 2>/dev/null || echo 2)
+
+passed=0
+failed=0
+skipped=0
+failures=()
+
+# Runs one step; its output goes to the terminal. Counts it as one passed or failed test.
+step() {
+  local name=$1
+  shift
+  echo ">> $name"
+  if "$@"; then
+    passed=$((passed + 1))
+  else
+    failed=$((failed + 1))
+    failures+=("$name")
+    echo ">> FAILED: $name"
+  fi
+}
+
+# Runs a test runner and adds the pass/fail counts of its summary line instead of one step.
+# ctest: "100% tests passed, 0 tests failed out of 4"; pytest: "18 passed, 1 skipped in 5.5s".
+counted() {
+  local name=$1
+  shift
+  echo ">> $name"
+  local out status p f s
+  out=$(mktemp)
+  "$@" 2>&1 | tee "$out"
+  status=${PIPESTATUS[0]}
+  if grep -q "tests failed out of" "$out"; then
+    p=$(sed -n 's/.*tests passed, \([0-9]*\) tests failed out of \([0-9]*\).*/\2 \1/p' "$out" | tail -1 |
+      awk '{ print $1 - $2 }')
+    f=$(sed -n 's/.*tests passed, \([0-9]*\) tests failed out of.*/\1/p' "$out" | tail -1)
+  else
+    p=$(grep -Eo '[0-9]+ passed' "$out" | tail -1 | grep -Eo '[0-9]+' || true)
+    f=$(grep -Eo '[0-9]+ (failed|error)' "$out" | tail -1 | grep -Eo '[0-9]+' || true)
+    s=$(grep -Eo '[0-9]+ skipped' "$out" | tail -1 | grep -Eo '[0-9]+' || true)
+    skipped=$((skipped + ${s:-0}))
+  fi
+  rm -f "$out"
+  p=${p:-0}
+  f=${f:-0}
+  # A runner that failed without a summary (or ran nothing) still counts as a failure.
+  if [ "$status" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  if [ "$p" -eq 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+  passed=$((passed + p))
+  failed=$((failed + f))
+  if [ "$f" -gt 0 ]; then failures+=("$name"); fi
+}
+
+# ---- system packages (installed only when missing, so reruns are fast) -----------------------
+missing=()
+command -v cmake >/dev/null || missing+=(cmake)
+command -v g++ >/dev/null || missing+=(g++)
+command -v pkg-config >/dev/null || missing+=(pkg-config)
+command -v valgrind >/dev/null || missing+=(valgrind)
+dpkg-query -W -f='${Status}' libpcl-dev 2>/dev/null | grep -q "install ok installed" || missing+=(libpcl-dev)
+python3 -c "import venv, ensurepip" 2>/dev/null || missing+=(python3-venv)
+if [ ${#missing[@]} -gt 0 ]; then
+  echo ">> installing ${missing[*]}"
+  sudo_cmd=()
+  [ "$(id -u)" = 0 ] || sudo_cmd=(sudo)
+  "${sudo_cmd[@]}" apt-get update -qq &&
+    "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+      "${missing[@]}" >/dev/null || { echo "integration: 0 passed, 1 failed"; exit 1; }
+fi
+
+mkdir -p "$build"
+# Developers share one working tree: one integration run at a time per build directory.
+exec 9>"$build/.lock"
+flock 9
+
+# ---- the library: CMake drives cargo; C and C++ ABI tests; install ---------------------------
+step "configure libsie" cmake -S . -B "$build/sie" -DCMAKE_BUILD_TYPE=Release -DCMAKE_INSTALL_PREFIX="$prefix"
+step "build libsie and the ABI tests" cmake --build "$build/sie" -j "$jobs"
+counted "ctest: C and C++ ABI tests, valgrind" ctest --test-dir "$build/sie" --output-on-failure
+rm -rf "$prefix"
+step "install into $prefix" cmake --install "$build/sie"
+
+check_soname() {
+  readelf -d "$prefix/lib/libsie.so.0.1.0" | grep -q 'SONAME.*\[libsie.so.0.1\]' &&
+    [ "$(readlink "$prefix/lib/libsie.so.0.1")" = libsie.so.0.1.0 ] &&
+    [ "$(readlink "$prefix/lib/libsie.so")" = libsie.so.0.1 ] && [ -f "$prefix/lib/libsie.a" ]
+}
+step "versioned soname and links" check_soname
+
+# ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
+step "consumer: configure with find_package(sie 0.1)" \
+  cmake -S tests/cmake-consumer -B "$build/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DSIE_REQUESTED_VERSION=0.1
+step "consumer: build (sie::sie, sie::sie_static)" cmake --build "$build/consumer" -j "$jobs"
+counted "ctest: consumer" ctest --test-dir "$build/consumer" --output-on-failure
+
+refuses_other_minor() {
+  rm -rf "$build/consumer-0.2"
+  ! cmake -S tests/cmake-consumer -B "$build/consumer-0.2" -DCMAKE_PREFIX_PATH="$prefix" \
+    -DSIE_REQUESTED_VERSION=0.2 >"$build/consumer-0.2.log" 2>&1 &&
+    grep -q 'compatible' "$build/consumer-0.2.log"
+}
+step "consumer: find_package(sie 0.2) is refused (SameMinorVersion)" refuses_other_minor
+
+pkg_config_build() {
+  local flags
+  flags=$(PKG_CONFIG_PATH="$prefix/lib/pkgconfig" pkg-config --cflags --libs sie) &&
+    # shellcheck disable=SC2086 # word splitting of the flags is intended
+    cc -std=c99 -Wall -Wextra -Werror tests/cmake-consumer/app.c $flags -Wl,-rpath,"$prefix/lib" \
+      -o "$build/app_pkgconfig" && "$build/app_pkgconfig"
+}
+step "pkg-config: build and run against sie.pc" pkg_config_build
+
+# ---- PCL: adapter test and the comparison ------------------------------------------------------
+step "examples-cpp: configure (PCL 1.13, installed sie)" \
+  cmake -S examples-cpp -B "$build/examples" -DCMAKE_PREFIX_PATH="$prefix"
+step "examples-cpp: build" cmake --build "$build/examples" -j "$jobs"
+counted "ctest: PCL adapter" ctest --test-dir "$build/examples" --output-on-failure
+
+# compare_pcl exits non-zero only when sie misses the tolerance.
+compare() {
+  local log=$1
+  shift
+  "$build/examples/compare_pcl" "$@" | tee "$build/$log"
+}
+step "compare_pcl: synthetic pair (1 deg, 5 mm)" compare compare_synthetic.txt --synthetic
+if [ -f "$data/pcl-test-bunny/bun0.pcd" ]; then
+  # No arguments: the documented default, which must pick the bunny here.
+  bunny_default() { SIE_DATA_DIR="$data" compare compare_bunny.txt && grep -q 'bun0.pcd -> bun4.pcd' "$build/compare_bunny.txt"; }
+  step "compare_pcl: bun0 -> bun4 (1 deg, 5 mm)" bunny_default
+  step "pcl_drop_in: the README's PCL snippets on bun0 -> bun4" \
+    "$build/examples/pcl_drop_in" "$data/pcl-test-bunny/bun0.pcd" "$data/pcl-test-bunny/bun4.pcd"
+else
+  echo ">> skipped: compare_pcl on the bunny ($data/pcl-test-bunny not present)"
+  skipped=$((skipped + 1))
+fi
+if [ -f "$data/small_gicp-data/source.ply" ]; then
+  step "compare_pcl: LiDAR pair (0.5 deg, 5 cm)" compare compare_lidar.txt \
+    "$data/small_gicp-data/source.ply" "$data/small_gicp-data/target.ply" \
+    "$data/small_gicp-data/T_target_source.txt" --tolerance 0.5 0.05
+else
+  echo ">> skipped: compare_pcl on the LiDAR pair ($data/small_gicp-data not present)"
+  skipped=$((skipped + 1))
+fi
+
+# ---- Python: install the package into a venv and run its tests -----------------------------------
+python_setup() {
+  [ -x "$build/venv/bin/python" ] || python3 -m venv "$build/venv" || return 1
+  "$build/venv/bin/pip" install -q --disable-pip-version-check numpy pytest || return 1
+  # A copy, so that setuptools' build/ and egg-info stay out of the source tree.
+  rm -rf "$build/python-src" && cp -r bindings/python "$build/python-src" &&
+    "$build/venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$build/python-src"
+}
+step "python: venv and pip install ./bindings/python" python_setup
+counted "pytest: bindings/python" env SIE_LIBRARY="$prefix/lib/libsie.so.0.1" SIE_DATA_DIR="$data" \
+  "$build/venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
+
+if [ ${#failures[@]} -gt 0 ]; then
+  printf ">> failed: %s\n" "${failures[@]}"
+fi
+echo "integration: $passed passed, $failed failed, $skipped skipped"
+[ "$failed" -eq 0 ]
