@@ -42,31 +42,53 @@ pub fn read_cloud(path: &Path) -> Result<CloudFile, String> {
     read_cloud_with(path, NonFinite::Reject)
 }
 
-/// Reads a cloud, choosing the format by extension (case-insensitive).
-///
-/// XYZ text: one point per line, the first three numbers separated by whitespace and/or
-/// commas (further columns ignored), `#` starts a comment; a first line without any number
-/// (a column header) is skipped.
+/// A point-cloud file format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CloudFormat {
+    Pcd,
+    Ply,
+    /// Plain text: one point per line, the first three numbers separated by whitespace and/or
+    /// commas (further columns ignored), `#` starts a comment; a first line without any number
+    /// (a column header) is skipped.
+    Xyz,
+}
+
+impl CloudFormat {
+    /// The format for a file extension (case-insensitive): pcd, ply, xyz or txt.
+    pub fn from_extension(extension: &str) -> Option<Self> {
+        match extension.to_ascii_lowercase().as_str() {
+            "pcd" => Some(CloudFormat::Pcd),
+            "ply" => Some(CloudFormat::Ply),
+            "xyz" | "txt" => Some(CloudFormat::Xyz),
+            _ => None,
+        }
+    }
+}
+
+/// Reads a cloud, choosing the format by extension (case-insensitive; see [`CloudFormat`]).
 pub fn read_cloud_with(path: &Path, non_finite: NonFinite) -> Result<CloudFile, String> {
     let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let parse: ParseFn = match extension.as_str() {
-        "pcd" => parse_pcd,
-        "ply" => parse_ply,
-        "xyz" | "txt" => parse_xyz,
-        _ => {
-            return Err(fail(&format_args!(
-                "unknown point-cloud extension {extension:?} (expected .pcd, .ply, .xyz or .txt)"
-            )));
-        }
+    let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let Some(format) = CloudFormat::from_extension(extension) else {
+        return Err(fail(&format_args!(
+            "unknown point-cloud extension {:?} (expected .pcd, .ply, .xyz or .txt)",
+            extension.to_ascii_lowercase()
+        )));
     };
     let bytes = fs::read(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
-    let raw = parse(&bytes).map_err(|e| fail(&e))?;
-    raw.finish(non_finite).map_err(|e| fail(&e))
+    parse_cloud(&bytes, format, non_finite).map_err(|e| fail(&e))
+}
+
+/// Parses a cloud held in memory. Malformed input is an error (one line), never a panic.
+pub fn parse_cloud(bytes: &[u8], format: CloudFormat, non_finite: NonFinite) -> Result<CloudFile, String> {
+    let parse: ParseFn = match format {
+        CloudFormat::Pcd => parse_pcd,
+        CloudFormat::Ply => parse_ply,
+        CloudFormat::Xyz => parse_xyz,
+    };
+    parse(bytes)
+        .and_then(|raw| raw.finish(non_finite))
+        .map_err(|e| one_line(&e))
 }
 
 /// Reads a rigid transform: 16 numbers (4×4, row-major) or 12 (the top 3×4 rows), separated
