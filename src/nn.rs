@@ -17,8 +17,8 @@ pub struct NearestNeighbours {
 }
 
 impl NearestNeighbours {
-    /// Builds the tree on the caller's thread (kiddo would otherwise use the global rayon
-    /// pool above 262 144 points, ignoring `RegistrationConfig::threads`).
+    /// Builds the tree on the caller's thread (kiddo's parallel construction needs its rayon
+    /// feature, which we leave off; see src/parallel.rs).
     ///
     /// Errors: more than `u32::MAX` points (kiddo stores u32 indices), a non-finite
     /// coordinate (it would corrupt the tree's splits), or a kiddo construction error.
