@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The integration half of the test suite (called by scripts/test-all.sh): builds libsie with
-# CMake, runs the C and C++ ABI tests with ctest (the C++ one also under valgrind), installs into
+# CMake, runs the C and C++ ABI tests with ctest (both also under valgrind), installs into
 # a staging prefix, builds a separate consumer project and examples-cpp against that install
 # (find_package + pkg-config), runs the PCL comparison on the bunny and LiDAR pairs with the
 # accuracy checks, and runs the Python binding's pytest suite.

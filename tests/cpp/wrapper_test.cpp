@@ -11,7 +11,6 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <stdexcept>
@@ -61,17 +60,6 @@ template <typename Body> std::string expect_error(sie::Status status, Body &&bod
 
 bool contains(const std::string &text, const char *needle) { return text.find(needle) != std::string::npos; }
 
-// SIE_TEST_THREADS=1 keeps every registration on the calling thread (the memcheck run: the
-// library's worker pools are not joined when they are dropped, so a pool's threads can still be
-// exiting when the process ends, which valgrind reports as possibly lost thread stacks).
-sie::Context make_context() {
-    sie::Context context;
-    if (const char *threads = std::getenv("SIE_TEST_THREADS")) {
-        context.set_threads(static_cast<std::uint32_t>(std::strtoul(threads, nullptr, 10)));
-    }
-    return context;
-}
-
 struct Clouds {
     std::vector<std::array<float, 3>> source;
     std::vector<std::array<float, 3>> target;
@@ -103,7 +91,7 @@ bool close_to(const sie::Transform &estimate, const scene::Matrix &truth, double
 void test_version_and_handle() {
     CHECK(sie_version_number() == SIE_VERSION_NUMBER);
     CHECK(std::strcmp(sie_version_string(), SIE_VERSION_STRING) == 0);
-    sie::Context context = make_context();
+    sie::Context context;
     CHECK(context.c_api() != nullptr);
     EXPECT_ERROR(sie::Status::NoResult, context.summary());
 
@@ -118,7 +106,7 @@ void test_version_and_handle() {
 }
 
 void test_settings_errors() {
-    sie::Context context = make_context();
+    sie::Context context;
     std::string detail = EXPECT_ERROR(sie::Status::InvalidArgument, context.set_max_iterations(0));
     CHECK(!detail.empty());
     EXPECT_ERROR(sie::Status::InvalidArgument, context.set_cost_function(sie::CostFunction::TruncatedL2, -1.0));
@@ -131,7 +119,7 @@ void test_settings_errors() {
 }
 
 void test_cloud_registration(const Clouds &clouds) {
-    sie::Context context = make_context();
+    sie::Context context;
     context.set_trace(true);
     const sie::Transform T = context.align(clouds.source, clouds.target);
     CHECK(close_to(T, clouds.truth, 0.2, 0.004));
@@ -206,7 +194,7 @@ void test_cloud_registration(const Clouds &clouds) {
 }
 
 void test_input_errors(const Clouds &clouds) {
-    sie::Context context = make_context();
+    sie::Context context;
     std::vector<std::array<float, 3>> with_nan = clouds.source;
     with_nan[17][1] = std::numeric_limits<float>::quiet_NaN();
     std::string detail = EXPECT_ERROR(sie::Status::NonFiniteInput, context.align(with_nan, clouds.target));
@@ -236,7 +224,7 @@ void test_correspondences() {
         source.push_back(a);
         target.push_back({a[0] + random.uniform(-1, 1), a[1] + random.uniform(-1, 1), a[2] + random.uniform(-1, 1)});
     }
-    sie::Context context = make_context();
+    sie::Context context;
     const sie::Transform T = context.align_correspondences(source, target);
     CHECK(close_to(T, scene::inverse(t0), 1.0, 0.01));
     const std::vector<double> p = context.inlier_probabilities();
@@ -268,7 +256,7 @@ struct CallbackFailure : std::runtime_error {
 void test_noise_callback(const Clouds &clouds) {
     int calls_source = 0, calls_target = 0;
     std::size_t points_seen = 0;
-    sie::Context context = make_context();
+    sie::Context context;
     // Quadratic in depth, as a structured-light camera: sigma = 1 + (|z| / 1 m)^2 (relative).
     context.set_noise_callback([&](sie::Cloud cloud, const double *xyz, std::size_t n, double *sigma) {
         (cloud == sie::Cloud::Source ? calls_source : calls_target) += 1;
@@ -338,7 +326,7 @@ void test_noise_callback(const Clouds &clouds) {
     CHECK(calls_after_clear == 0);
 
     // A context destroyed with a callback installed frees both (valgrind checks the leak).
-    sie::Context short_lived = make_context();
+    sie::Context short_lived;
     short_lived.set_noise_callback([](sie::Cloud, const double *, std::size_t, double *) {});
 }
 
@@ -347,7 +335,7 @@ struct ProgressFailure : std::runtime_error {
 };
 
 void test_progress_cancel_and_skipping(const Clouds &clouds) {
-    sie::Context context = make_context();
+    sie::Context context;
     std::vector<std::uint32_t> seen;
     context.set_progress_callback([&seen](const sie::TraceEntry &entry) {
         seen.push_back(entry.iteration);
@@ -405,7 +393,7 @@ void test_estimate_inliers() {
     for (int i = 0; i < 1000; ++i) {
         residuals.push_back(random.uniform(-1.0, 1.0));
     }
-    sie::Context context = make_context();
+    sie::Context context;
     const sie::InlierEstimate estimate = context.estimate_inliers(residuals.data(), residuals.size(), 1);
     CHECK(estimate.probabilities.size() == residuals.size());
     CHECK(estimate.models.size() == 1);
