@@ -1,11 +1,11 @@
 //! Registers a large synthetic room pair and reports time and peak memory (issue: load).
 //!
-//! `cargo run --release --example large_pair -- [points per cloud] [max correspondences]`
+//! `cargo run --release --example large_pair -- [points per cloud] [max correspondences] [plane|point] [noise sigma]`
 use std::time::Instant;
 
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::synthetic::room_scene;
-use sie::{Hooks, RegistrationConfig, register_clouds};
+use sie::{Hooks, Metric, RegistrationConfig, register_clouds};
 
 /// Peak resident set size of this process (VmHWM), in MiB.
 fn peak_rss_mib() -> f64 {
@@ -23,10 +23,15 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let points: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(10_000_000);
     let sample: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(0);
+    let metric = match args.next().as_deref() {
+        Some("point") => Metric::PointToPoint,
+        _ => Metric::PointToPlane,
+    };
+    let noise: f64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(0.01);
     let start = Instant::now();
-    let scene = room_scene(points, 0.01, 1);
+    let scene = room_scene(points, noise, 1);
     println!(
-        "scene: {} + {} points in {:.1} s, peak RSS {:.0} MiB",
+        "scene: {} + {} points, noise {noise} m, in {:.1} s, peak RSS {:.0} MiB",
         scene.source.len(),
         scene.target.len(),
         start.elapsed().as_secs_f64(),
@@ -34,6 +39,7 @@ fn main() {
     );
     let config = RegistrationConfig {
         max_correspondences: sample,
+        metric,
         ..RegistrationConfig::default()
     };
     let start = Instant::now();
@@ -49,7 +55,7 @@ fn main() {
     let seconds = start.elapsed().as_secs_f64();
     let error = scene.t_target_source.try_inverse().unwrap() * result.transform;
     println!(
-        "registered (max correspondences {sample}): {:?} after {} iterations in {seconds:.1} s; \
+        "registered ({metric:?}, max correspondences {sample}): {:?} after {} iterations in {seconds:.1} s; \
          error {:.4} deg / {:.2} mm; peak RSS {:.0} MiB",
         result.stop_reason,
         result.iterations,

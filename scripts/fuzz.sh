@@ -8,6 +8,7 @@ seconds="${1:-60}"
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked --quiet
 # cargo-fuzz needs nightly compiler flags; the stable toolchain accepts them with this switch.
 export RUSTC_BOOTSTRAP=1
+passed=0
 for target in estimate_inliers register_correspondences cloud_readers; do
   echo "== fuzz $target for ${seconds}s"
   cargo fuzz run "$target" -- -max_total_time="$seconds" -rss_limit_mb=4096 -print_final_stats=1 2>&1 \
@@ -16,6 +17,9 @@ for target in estimate_inliers register_correspondences cloud_readers; do
   status=${PIPESTATUS[0]}
   if [ "$status" -ne 0 ]; then
     echo "fuzz target $target failed (exit $status); the crashing input is in fuzz/artifacts/$target/"
+    echo "fuzz: $passed passed, 1 failed"
     exit 1
   fi
+  passed=$((passed + 1))
 done
+echo "fuzz: $passed passed, 0 failed"

@@ -36,9 +36,16 @@ if [ "${SIE_SKIP_INTEGRATION:-0}" != 1 ]; then
   integration_status=${PIPESTATUS[0]}
   [ "$integration_status" -eq 0 ] || status=1
 fi
+# Bounded fuzzing of the C ABI and the readers (scripts/fuzz.sh; SIE_FUZZ_SECONDS=0 skips it).
+fuzz_seconds=${SIE_FUZZ_SECONDS:-60}
+if [ "$fuzz_seconds" != 0 ]; then
+  echo "== fuzzing (${fuzz_seconds}s per target)"
+  ./scripts/fuzz.sh "$fuzz_seconds" 2>&1 | tee -a "$log"
+  [ "${PIPESTATUS[0]}" -eq 0 ] || status=1
+fi
 set -e
 # One closing line for the whole run, summed over every test binary and the integration steps.
 awk '/^test result:/ { for (i = 1; i <= NF; i++) { if ($(i+1) ~ /^passed/) p += $i; if ($(i+1) ~ /^failed/) f += $i } }
-     /^integration: [0-9]+ passed, [0-9]+ failed/ { p += $2; f += $4 }
+     /^(integration|fuzz): [0-9]+ passed, [0-9]+ failed/ { p += $2; f += $4 }
      END { printf "%d passed, %d failed\n", p, f }' "$log"
 exit "$status"
