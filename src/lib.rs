@@ -4,7 +4,7 @@
 //!
 //! * [`sie`]: the estimator on any residual matrix.
 //! * [`registration`]: rigid registration from correspondences or ICP on two clouds.
-//! * [`ffi`]: the C ABI (the only place with `unsafe`).
+//! * [`ffi`]: the C ABI (the only module that touches raw pointers).
 //!
 //! ```
 //! use sie::synthetic::room_scene;
