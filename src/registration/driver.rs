@@ -275,7 +275,7 @@ fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error>
 }
 
 fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
-    match points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+    match points.iter().position(|p| !is_finite(p)) {
         None => Ok(()),
         Some(i) => Err(Error::NonFinite(format!(
             "{what}[{i}] = {:?} is not finite",
