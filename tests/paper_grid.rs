@@ -11,7 +11,7 @@ use simulation::{
     instance_seed, paper_methods, run_cell,
 };
 
-const INSTANCES: usize = 12;
+const INSTANCES: usize = 25;
 const THREADS: usize = 2;
 
 fn cell(outliers: usize, motion: Motion, step: usize) -> Cell {
