@@ -5,6 +5,8 @@ use nalgebra::{Matrix3, Matrix4, Matrix6, Rotation3, SymmetricEigen, Vector3, Ve
 
 use crate::registration::Point;
 
+/// How far RᵀR of a given rigid transform may be from I.
+const ROTATION_TOLERANCE: f64 = 1e-6;
 /// Singular-value ratio below which the point-to-point cross-covariance is rank ≤ 1
 /// (all points collinear or coincident: rotation about that line is undetermined).
 const KABSCH_RANK_RATIO: f64 = 1e-10;
@@ -75,6 +77,39 @@ pub fn centroid(points: &[Point]) -> Point {
         .fold([0.0; 3], |s, p| [s[0] + p[0], s[1] + p[1], s[2] + p[2]]);
     let n = points.len() as f64;
     [sum[0] / n, sum[1] / n, sum[2] / n]
+}
+
+/// Checks that `matrix` (named `name` in messages) is a homogeneous rigid transform: finite,
+/// last row exactly 0 0 0 1, rotation block orthonormal to 1e-6 with det +1.
+pub fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), String> {
+    // Row-major index, as C callers store it.
+    if let Some(index) = matrix.transpose().iter().position(|v| !v.is_finite()) {
+        return Err(format!(
+            "{name}[{index}] is {}; the transform must be finite",
+            matrix[(index / 4, index % 4)]
+        ));
+    }
+    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
+    if last_row != [0.0, 0.0, 0.0, 1.0] {
+        return Err(format!(
+            "{name}: last row is {last_row:?}; a homogeneous transform ends in 0 0 0 1 (row-major)"
+        ));
+    }
+    let rotation = rotation_part(matrix);
+    let orthogonality_error = (rotation.transpose() * rotation - Matrix3::identity()).amax();
+    if orthogonality_error > ROTATION_TOLERANCE {
+        return Err(format!(
+            "{name}: the rotation part is not orthonormal (max |R^T R - I| = {orthogonality_error:e} \
+             > {ROTATION_TOLERANCE:e}); is the matrix column-major?"
+        ));
+    }
+    let determinant = rotation.determinant();
+    if determinant < 0.0 {
+        return Err(format!(
+            "{name}: the rotation part is a reflection (det = {determinant})"
+        ));
+    }
+    Ok(())
 }
 
 /// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation.

@@ -513,3 +513,65 @@ fn observer_sees_every_iteration_and_can_cancel() {
     assert_eq!(count, observed.iterations);
     assert_eq!(observed.transform, plain.transform);
 }
+
+#[test]
+fn a_cloud_registered_onto_itself_converges_at_the_identity() {
+    // Zero residuals: the histogram has no spread, so every sample is at the peak.
+    let scene = room_scene(3000, 0.01, 6);
+    for metric in [Metric::PointToPlane, Metric::PointToPoint] {
+        let config = RegistrationConfig {
+            metric,
+            ..RegistrationConfig::default()
+        };
+        let r = register_clouds(
+            &scene.target,
+            &scene.target,
+            None,
+            None,
+            &config,
+            Hooks::default(),
+        )
+        .unwrap();
+        assert_eq!(r.stop_reason, StopReason::Converged, "{metric:?}");
+        assert!(r.iterations <= 3, "{metric:?}: {} iterations", r.iterations);
+        assert!(
+            (r.transform - Matrix4::identity()).abs().max() < 1e-12,
+            "{metric:?}"
+        );
+        // At an exact fit the residuals are round-off (a mix of exact zeros and ~1e-16), so the
+        // probabilities are not all at the cap; they must still be valid.
+        assert!(
+            (0.0..=1.0).contains(&r.inlier_fraction),
+            "{metric:?}: {}",
+            r.inlier_fraction
+        );
+    }
+    let pairs = register_correspondences(
+        &scene.target,
+        &scene.target,
+        None,
+        &RegistrationConfig::default(),
+        Hooks::default(),
+    )
+    .unwrap();
+    assert_eq!(pairs.stop_reason, StopReason::Converged);
+    assert!((pairs.transform - Matrix4::identity()).abs().max() < 1e-12);
+}
+
+#[test]
+fn fewer_than_ten_residuals_are_all_taken_as_inliers_without_a_peak() {
+    for residuals in [
+        vec![1.0],
+        vec![1.0, -1.0],
+        vec![0.1, 0.3, -0.2, 0.05, 0.4, -0.1, 0.2, 0.0, 0.15],
+    ] {
+        let e = sie::estimate_inliers(&residuals, 1, None, 0.0, &sie::SieOptions::default()).unwrap();
+        assert!(
+            e.probabilities.iter().all(|&p| p == 0.99),
+            "{residuals:?}: {:?}",
+            e.probabilities
+        );
+        assert!(!e.models[0].peak_found);
+        assert!(e.models[0].shape.sigma.is_finite());
+    }
+}

@@ -9,9 +9,6 @@ use super::boundary::FfiError;
 use super::sie_status;
 use crate::registration::Point;
 
-/// How far R^T R may be from the identity for an initial transform to count as a rotation.
-const ROTATION_TOLERANCE: f64 = 1e-6;
-
 /// The scalar types point arrays come in.
 pub(crate) trait Coordinate: Copy {
     const C_NAME: &'static str;
@@ -167,39 +164,8 @@ pub(crate) unsafe fn read_transform(ptr: *const f64, name: &str) -> Result<Optio
     // SAFETY: forwarded contract.
     let values = unsafe { read_array(ptr, 16, name) }?;
     let matrix = Matrix4::from_row_slice(&values);
-    check_rigid(&matrix, name)?;
+    crate::geometry::check_rigid(&matrix, name).map_err(FfiError::invalid)?;
     Ok(Some(matrix))
-}
-
-/// A homogeneous rigid transform: finite, last row 0 0 0 1, proper rotation.
-pub(crate) fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), FfiError> {
-    if let Some(index) = matrix.transpose().iter().position(|v| !v.is_finite()) {
-        return Err(FfiError::invalid(format!(
-            "{name}[{index}] is {}; the transform must be finite",
-            matrix[(index / 4, index % 4)]
-        )));
-    }
-    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
-    if last_row != [0.0, 0.0, 0.0, 1.0] {
-        return Err(FfiError::invalid(format!(
-            "{name}: last row is {last_row:?}; a homogeneous transform ends in 0 0 0 1 (row-major)"
-        )));
-    }
-    let rotation = matrix.fixed_view::<3, 3>(0, 0);
-    let orthogonality_error = (rotation.transpose() * rotation - nalgebra::Matrix3::identity()).amax();
-    if orthogonality_error > ROTATION_TOLERANCE {
-        return Err(FfiError::invalid(format!(
-            "{name}: the rotation part is not orthonormal (max |R^T R - I| = {orthogonality_error:e} \
-             > {ROTATION_TOLERANCE:e}); is the matrix column-major?"
-        )));
-    }
-    let determinant = rotation.determinant();
-    if determinant < 0.0 {
-        return Err(FfiError::invalid(format!(
-            "{name}: the rotation part is a reflection (det = {determinant})"
-        )));
-    }
-    Ok(())
 }
 
 /// Row-major copy of a 4x4 matrix (nalgebra stores column-major).

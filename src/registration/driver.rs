@@ -8,7 +8,7 @@ use super::{
     StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
-use crate::geometry::{rotation_part, transform_change};
+use crate::geometry::transform_change;
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
 use crate::parallel::Workers;
 use crate::sie::{SieEstimator, SieOptions};
@@ -284,27 +284,13 @@ fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
     }
 }
 
-/// The initial guess must be a rigid transform: finite, last row 0 0 0 1, R orthonormal with
-/// det +1 (to 1e-6).
+/// The initial guess must be a rigid transform (`geometry::check_rigid`); it is then projected
+/// exactly onto SO(3).
 pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>, Error> {
     let Some(t) = init else {
         return Ok(Matrix4::identity());
     };
-    let bad = |m: &str| Err(Error::InvalidArgument(format!("initial guess {m}")));
-    if !t.iter().all(|v| v.is_finite()) {
-        return bad("has a non-finite entry");
-    }
-    if t.row(3)
-        .iter()
-        .zip([0.0, 0.0, 0.0, 1.0])
-        .any(|(a, b)| (a - b).abs() > 1e-9)
-    {
-        return bad("must have last row 0 0 0 1");
-    }
-    let r = rotation_part(t);
-    if (r.transpose() * r - nalgebra::Matrix3::identity()).abs().max() > 1e-6 || r.determinant() < 0.0 {
-        return bad("rotation block is not a proper rotation (orthonormal, det +1)");
-    }
+    crate::geometry::check_rigid(t, "initial guess").map_err(Error::InvalidArgument)?;
     Ok(crate::geometry::orthonormalised(t))
 }
 
