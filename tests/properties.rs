@@ -130,6 +130,9 @@ proptest! {
     /// Correspondences with SIE: a translation of both frames changes nothing but the
     /// translation; a rotation changes the per-axis histograms' samples (the pooled histogram
     /// is of x, y, z components), so the result agrees only to well within the noise.
+    /// 100 outliers: with 500 or 1000 outliers and this combined start (0.3 rad and 0.2),
+    /// 0.8 % and 1.7 % of instances fall into the outliers' basin (seed 520 is one), and a
+    /// frame rotation can move an instance across that boundary (docs/results.md).
     #[test]
     fn correspondence_registration_follows_a_change_of_frame(
         angles in prop::array::uniform3(-3.0..3.0f64),
@@ -137,9 +140,11 @@ proptest! {
         seed in 0u64..1000,
     ) {
         let t0 = rigid(0.3, 0.0, 0.0, 0.2, 0.0, 0.0);
-        let data = paper_simulation(1000, 500, 0.01, &t0, seed);
+        let data = paper_simulation(1000, 100, 0.01, &t0, seed);
         let config = RegistrationConfig::default();
         let here = register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
+        let truth_error = (here.transform - t0.try_inverse().unwrap()).abs().max();
+        prop_assert!(truth_error < 0.01, "seed {seed}: error against the truth {truth_error}");
         let translate = rigid(0.0, 0.0, 0.0, shift[0], shift[1], shift[2]);
         let full = rigid(angles[0], angles[1], angles[2], shift[0], shift[1], shift[2]);
         for (g, tolerance) in [(translate, 1e-6), (full, 2e-3)] {
