@@ -36,6 +36,6 @@ pub use cost::CostFunction;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use registration::{
     Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
-    StopReason, TraceEntry, estimate_inliers, register_clouds, register_correspondences,
+    StageTimes, StopReason, TraceEntry, estimate_inliers, register_clouds, register_correspondences,
 };
 pub use sie::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieEstimator, SieOptions};

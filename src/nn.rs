@@ -69,6 +69,21 @@ impl NearestNeighbours {
         (nearest.item as usize, nearest.distance)
     }
 
+    /// Index of the nearest point and the distances (not squared) to the nearest and the second
+    /// nearest (∞ when there is only one point). On an empty index: `(usize::MAX, ∞, ∞)`.
+    pub fn nearest_two(&self, query: &Point) -> (usize, f64, f64) {
+        if self.is_empty() {
+            return (usize::MAX, f64::INFINITY, f64::INFINITY);
+        }
+        let found = self
+            .tree
+            .query(query)
+            .nearest_n::<SquaredEuclidean<f64>>(NonZeroUsize::MIN.saturating_add(1))
+            .execute();
+        let second = found.get(1).map_or(f64::INFINITY, |r| r.distance.sqrt());
+        (found[0].item as usize, found[0].distance.sqrt(), second)
+    }
+
     /// Replaces `out` with the indices of the `min(k, len)` nearest points in ascending
     /// distance (a point identical to `query` is included; ties in any order).
     pub fn nearest_k(&self, query: &Point, k: usize, out: &mut Vec<usize>) {
@@ -165,6 +180,21 @@ mod tests {
         // A query on an indexed point finds that point first.
         index.nearest_k(&points[42], 3, &mut out);
         assert_eq!(out[0], 42);
+    }
+
+    #[test]
+    fn nearest_two_matches_brute_force() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+        let points = random_points(&mut rng, 2000, 1.0);
+        let index = NearestNeighbours::new(&points).unwrap();
+        for q in random_points(&mut rng, 500, 1.2) {
+            let (i, first, second) = index.nearest_two(&q);
+            let sorted = brute_force_distances(&points, &q);
+            assert_eq!(squared_distance(&points[i], &q), sorted[0]);
+            assert_eq!((first, second), (sorted[0].sqrt(), sorted[1].sqrt()));
+        }
+        let single = NearestNeighbours::new(&[[1.0, 0.0, 0.0]]).unwrap();
+        assert_eq!(single.nearest_two(&[0.0; 3]), (0, 1.0, f64::INFINITY));
     }
 
     #[test]

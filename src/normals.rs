@@ -33,13 +33,137 @@ pub fn estimate_normals(
         points.len(),
         "estimate_normals: the index must be built from `points`"
     );
+    normals_from(points, points, index, k, workers)
+}
+
+/// A k-NN neighbourhood whose thickness (smallest covariance eigenvalue) is above this fraction
+/// of its in-plane spread (middle eigenvalue) is dominated by noise: about 4σ²/R² for noise σ
+/// and radius R, so 0.05 asks for R ≳ 9σ (a normal within a few degrees from k = 10).
+const NOISY_NEIGHBOURHOOD_RATIO: f64 = 0.05;
+/// Neighbourhoods sampled to measure that ratio.
+const SCALE_PROBES: usize = 512;
+/// Each step keeps one point in 4, which doubles the radius of k neighbours on a surface.
+const THINNING_STEP: usize = 4;
+const MAX_THINNING: usize = 256;
+
+/// [`estimate_normals`] with the neighbourhood scale chosen from the data: when the k nearest
+/// neighbours are so close that sensor noise dominates them (dense, noisy clouds: 1 M points of
+/// a room at 1 cm noise), the normals come from the k nearest points of a thinned copy of the
+/// cloud instead, thinned just enough for the median neighbourhood to be a plane (thickness
+/// ratio below [`NOISY_NEIGHBOURHOOD_RATIO`]). Thinning stops when it no longer helps as noise
+/// would (the ratio drops by less than a quarter: curvature or a volumetric cloud) and keeps at
+/// least 20·k points. Returns the normals and the thinning factor used (1 = plain k-NN).
+pub fn estimate_normals_at_data_scale(
+    points: &[Point],
+    index: &NearestNeighbours,
+    k: usize,
+    workers: &Workers,
+) -> (Vec<Point>, usize) {
+    let probes: Vec<Point> = (0..SCALE_PROBES.min(points.len()))
+        .map(|j| points[j * points.len() / SCALE_PROBES.min(points.len())])
+        .collect();
+    let mut ratio = median_thickness(&probes, points, index, k);
+    let mut chosen: Option<(usize, Vec<Point>, NearestNeighbours)> = None;
+    let mut factor = 1;
+    while ratio > NOISY_NEIGHBOURHOOD_RATIO && factor * THINNING_STEP <= MAX_THINNING {
+        let next = factor * THINNING_STEP;
+        let thinned = thin(points, next);
+        if thinned.len() < 20 * k.max(1) {
+            break;
+        }
+        let Ok(thin_index) = NearestNeighbours::new(&thinned) else {
+            break;
+        };
+        let thinner = median_thickness(&probes, &thinned, &thin_index, k);
+        if thinner > 0.75 * ratio {
+            break;
+        }
+        (ratio, factor) = (thinner, next);
+        chosen = Some((next, thinned, thin_index));
+    }
+    match chosen {
+        None => (estimate_normals(points, index, k, workers), 1),
+        Some((factor, thinned, thin_index)) => {
+            (normals_from(points, &thinned, &thin_index, k, workers), factor)
+        }
+    }
+}
+
+/// About one point in `factor`, chosen by a hash of the index (no aliasing with the row
+/// structure of organised clouds, and deterministic).
+fn thin(points: &[Point], factor: usize) -> Vec<Point> {
+    points
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| splitmix64(*i as u64) % factor as u64 == 0)
+        .map(|(_, p)| *p)
+        .collect()
+}
+
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Median over the probes of λ_min / λ_mid of their k nearest points in `cloud` (∞ when no
+/// probe has a plane-like neighbourhood).
+fn median_thickness(probes: &[Point], cloud: &[Point], index: &NearestNeighbours, k: usize) -> f64 {
+    let mut neighbours = Vec::with_capacity(k);
+    let mut ratios: Vec<f64> = probes
+        .iter()
+        .filter_map(|p| {
+            index.nearest_k(p, k, &mut neighbours);
+            let [smallest, middle, _] = eigenvalues_ascending(&covariance(cloud, &neighbours));
+            (middle > 0.0).then(|| smallest.max(0.0) / middle)
+        })
+        .collect();
+    if ratios.is_empty() {
+        return f64::INFINITY;
+    }
+    let half = ratios.len() / 2;
+    *ratios.select_nth_unstable_by(half, f64::total_cmp).1
+}
+
+/// Eigenvalues of a symmetric 3×3 matrix, ascending (trigonometric form, Smith 1961; accurate
+/// to about √ε of the largest when two are close). Zero spread or NaN: the mean three times.
+fn eigenvalues_ascending(a: &[[f64; 3]; 3]) -> [f64; 3] {
+    let off_diagonal = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
+    let mean = (a[0][0] + a[1][1] + a[2][2]) / 3.0;
+    let spread =
+        ((a[0][0] - mean).powi(2) + (a[1][1] - mean).powi(2) + (a[2][2] - mean).powi(2) + 2.0 * off_diagonal)
+            / 6.0;
+    if spread.is_nan() || spread <= 0.0 {
+        return [mean; 3];
+    }
+    let p = spread.sqrt();
+    // B = (A − mean·I) / p has eigenvalues 2·cos(φ + 2πj/3) with cos(3φ) = det(B)/2.
+    let b = |r: usize, c: usize| (a[r][c] - if r == c { mean } else { 0.0 }) / p;
+    let det_b = b(0, 0) * (b(1, 1) * b(2, 2) - b(1, 2) * b(2, 1))
+        - b(0, 1) * (b(1, 0) * b(2, 2) - b(1, 2) * b(2, 0))
+        + b(0, 2) * (b(1, 0) * b(2, 1) - b(1, 1) * b(2, 0));
+    let phi = (det_b / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+    let largest = mean + 2.0 * p * phi.cos();
+    let smallest = mean + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
+    [smallest, 3.0 * mean - largest - smallest, largest]
+}
+
+/// Normal at each of `points` from its k nearest points of `cloud` (`index` is built on `cloud`).
+fn normals_from(
+    points: &[Point],
+    cloud: &[Point],
+    index: &NearestNeighbours,
+    k: usize,
+    workers: &Workers,
+) -> Vec<Point> {
     let mut normals = vec![[0.0; 3]; points.len()];
     workers.for_each_chunk_mut(&mut normals, |first, chunk| {
         let mut neighbours = Vec::with_capacity(k);
         for (offset, normal) in chunk.iter_mut().enumerate() {
             let p = &points[first + offset];
             index.nearest_k(p, k, &mut neighbours);
-            *normal = match smallest_eigenvector(&covariance(points, &neighbours)) {
+            *normal = match smallest_eigenvector(&covariance(cloud, &neighbours)) {
                 Some(n) if dot(&n, p) > 0.0 => n.map(|c| -c),
                 Some(n) => n,
                 None => [0.0; 3],
@@ -108,24 +232,11 @@ fn smallest_eigenvector(matrix: &[[f64; 3]; 3]) -> Option<Point> {
     if minors <= LINE_EIGENVALUE_RATIO * trace * trace {
         return None;
     }
-    let mean = trace / 3.0;
-    let spread =
-        ((a[0][0] - mean).powi(2) + (a[1][1] - mean).powi(2) + (a[2][2] - mean).powi(2) + 2.0 * off_diagonal)
-            / 6.0;
-    // Zero spread: all eigenvalues equal (isotropic) — no unique normal.
-    if spread.is_nan() || spread <= 0.0 {
+    let [smallest, middle, largest] = eigenvalues_ascending(&a);
+    // All eigenvalues equal (isotropic): no unique normal.
+    if largest.is_nan() || largest <= smallest {
         return None;
     }
-    let p = spread.sqrt();
-    // B = (A − mean·I) / p has eigenvalues 2·cos(φ + 2πj/3) with cos(3φ) = det(B)/2.
-    let b = |r: usize, c: usize| (a[r][c] - if r == c { mean } else { 0.0 }) / p;
-    let det_b = b(0, 0) * (b(1, 1) * b(2, 2) - b(1, 2) * b(2, 1))
-        - b(0, 1) * (b(1, 0) * b(2, 2) - b(1, 2) * b(2, 0))
-        + b(0, 2) * (b(1, 0) * b(2, 1) - b(1, 1) * b(2, 0));
-    let phi = (det_b / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
-    let largest = mean + 2.0 * p * phi.cos();
-    let smallest = mean + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
-    let middle = trace - largest - smallest;
     if middle - smallest >= largest - middle {
         return null_vector(&a, smallest);
     }
@@ -303,6 +414,58 @@ mod tests {
         assert!(normals.iter().flatten().all(|c| c.is_finite()));
         assert!(normals[1000..].iter().all(|n| *n == [0.0; 3]));
         assert!(normals[..1000].iter().all(|n| (dot(n, n) - 1.0).abs() < 1e-12));
+    }
+
+    /// 200 000 points on a 4 × 4 plane with σ = 1 cm: the 10 nearest points lie within ~1.6 cm,
+    /// so plain k-NN normals are noise; the data-chosen scale thins the cloud until they are
+    /// planes. A clean plane keeps plain k-NN (factor 1, identical normals).
+    #[test]
+    fn data_scale_thins_dense_noisy_clouds_only() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(11);
+        let normal = [0.0, 0.0, 1.0];
+        let centre = [0.0, 0.0, -2.0];
+        let workers = Workers::new(2).unwrap();
+        let median_error = |points: &[Point], normals: &[Point]| {
+            let mut e: Vec<f64> = normals[..2000]
+                .iter()
+                .map(|n| angle_degrees(n, &normal).min(angle_degrees(n, &normal.map(|c| -c))))
+                .collect();
+            e.sort_by(f64::total_cmp);
+            assert_eq!(points.len(), normals.len());
+            e[e.len() / 2]
+        };
+        let noisy = noisy_plane(&mut rng, &normal, &centre, 200_000, 0.01);
+        let index = NearestNeighbours::new(&noisy).unwrap();
+        let plain = estimate_normals(&noisy, &index, 10, &workers);
+        let (scaled, factor) = estimate_normals_at_data_scale(&noisy, &index, 10, &workers);
+        let (plain_error, scaled_error) = (median_error(&noisy, &plain), median_error(&noisy, &scaled));
+        assert!(factor >= 16, "factor {factor}");
+        assert!(plain_error > 20.0, "plain k-NN median error {plain_error}°");
+        assert!(scaled_error < 5.0, "data-scale median error {scaled_error}°");
+
+        let clean = noisy_plane(&mut rng, &normal, &centre, 20_000, 0.0005);
+        let index = NearestNeighbours::new(&clean).unwrap();
+        let (scaled, factor) = estimate_normals_at_data_scale(&clean, &index, 10, &workers);
+        assert_eq!(factor, 1);
+        assert_eq!(scaled, estimate_normals(&clean, &index, 10, &workers));
+    }
+
+    #[test]
+    fn eigenvalues_of_a_diagonal_and_a_rotated_matrix() {
+        assert_eq!(
+            eigenvalues_ascending(&[[3.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]])
+                .map(|v| (v * 1e9).round()),
+            [1e9, 2e9, 3e9]
+        );
+        // R·diag(0.01, 1, 4)·Rᵀ for a rotation about (1, 1, 1).
+        let m = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.01, 1.0, 4.0));
+        let r = nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::x_axis(), 0.7)
+            * nalgebra::Rotation3::from_axis_angle(&nalgebra::Vector3::z_axis(), 0.4);
+        let a = r.matrix() * m * r.matrix().transpose();
+        let values = eigenvalues_ascending(&[0, 1, 2].map(|i| [0, 1, 2].map(|j| a[(i, j)])));
+        for (got, want) in values.iter().zip([0.01, 1.0, 4.0]) {
+            assert!((got - want).abs() < 1e-12, "{values:?}");
+        }
     }
 
     #[test]

@@ -98,6 +98,7 @@ fn sample_result() -> RegistrationResult {
         probabilities: vec![0.9, 0.0, 0.8],
         correspondences: vec![4, -1, 2],
         histograms: vec![histogram()],
+        times: Default::default(),
         trace: vec![TraceEntry {
             iteration: 1,
             annealing: true,

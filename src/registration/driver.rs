@@ -1,11 +1,13 @@
 //! The IRLS driver: β annealing (§4.3), adaptive k (§4.5), convergence and stop reasons,
 //! shared by correspondence registration and ICP.
+use std::time::Instant;
+
 use nalgebra::Matrix4;
 
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
 use super::{
     Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
-    StopReason, TraceEntry,
+    StageTimes, StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
@@ -31,6 +33,7 @@ pub fn register_correspondences(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
+    let started = Instant::now();
     config.validate()?;
     if source.len() != target.len() {
         return Err(Error::InvalidArgument(format!(
@@ -60,7 +63,9 @@ pub fn register_correspondences(
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
-    run(&mut problem, init, config, hooks.observer)
+    let mut result = run(&mut problem, init, config, hooks.observer)?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
 }
 
 fn is_finite(p: &Point) -> bool {
@@ -156,6 +161,7 @@ pub fn register_clouds(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
+    let started = Instant::now();
     config.validate()?;
     if let Some(normals) = target_normals {
         if normals.len() != target.len() {
@@ -195,7 +201,9 @@ pub fn register_clouds(
         workers,
     )
     .map_err(Error::InvalidArgument)?;
-    run(&mut problem, init, config, hooks.observer)
+    let mut result = run(&mut problem, init, config, hooks.observer)?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
 }
 
 /// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
@@ -469,6 +477,8 @@ fn run(
     let cols = problem.cols();
     let anchor = problem.source_centroid();
     let mut transform = init;
+    // The transform before the last update, for the 2-cycle test below.
+    let mut previous = init;
     let mut weighting = Weighting::new(config);
     let mut work = Workspace {
         normalised: Vec::new(),
@@ -480,15 +490,32 @@ fn run(
     let mut iterations = 0;
     let mut trace = Vec::new();
     let mut level_iterations = 0u32;
+    let (index, normals) = problem.setup_seconds();
+    let mut times = StageTimes {
+        index,
+        normals,
+        ..StageTimes::default()
+    };
+    let mut clock = Instant::now();
+    let mut lap = |stage: &mut f64| {
+        let now = Instant::now();
+        *stage += (now - clock).as_secs_f64();
+        clock = now;
+    };
     for iteration in 1..=config.max_iterations {
+        lap(&mut 0.0);
         let rows = problem.linearise(&transform);
+        lap(&mut times.matching);
         if rows.is_empty() {
             stop = StopReason::Degenerate;
             break;
         }
         normalise(rows, cols, &mut work.normalised);
         weighting.update(rows, cols, config, iteration == 1, &mut work);
-        let Some(solve) = problem.solve(&transform, &work.weights) else {
+        lap(&mut times.weighting);
+        let solve = problem.solve(&transform, &work.weights);
+        lap(&mut times.solve);
+        let Some(solve) = solve else {
             stop = StopReason::Degenerate;
             break;
         };
@@ -496,6 +523,8 @@ fn run(
         let rows = problem.rows();
         let (rotation_change, translation_change) = transform_change(&transform, &solve.transform, &anchor);
         let displacement = problem.displacement(&transform, &solve.transform);
+        let (cycle_rotation, cycle_translation) = transform_change(&previous, &solve.transform, &anchor);
+        previous = transform;
         transform = solve.transform;
         rank_deficient = solve.rank_deficient;
         if config.record_trace || observer.is_some() {
@@ -521,6 +550,13 @@ fn run(
         }
         let below_tolerance = translation_change <= config.translation_tolerance
             && rotation_change <= config.rotation_tolerance;
+        // ICP's discrete matching can alternate between two correspondence sets whose optima
+        // differ by more than the tolerance: T_{k+1} = T_{k-1}. Further updates only repeat the
+        // pair, so a fixed model that returns within tolerance to where it was two updates ago
+        // has converged (either member is as good an answer as the data gives).
+        let two_cycle = iteration > 2
+            && cycle_translation <= config.translation_tolerance
+            && cycle_rotation <= config.rotation_tolerance;
         if let Weighting::Sie {
             estimator,
             annealing,
@@ -544,7 +580,15 @@ fn run(
                 }
                 continue;
             }
+            let was_frozen = *frozen;
             *frozen |= settled;
+            if was_frozen && two_cycle {
+                stop = StopReason::Converged;
+                break;
+            }
+        } else if two_cycle {
+            stop = StopReason::Converged;
+            break;
         }
         if below_tolerance {
             stop = StopReason::Converged;
@@ -557,7 +601,9 @@ fn run(
 
     // Report everything at the returned transform, for every source point.
     let source_count = problem.source_count();
+    lap(&mut 0.0);
     let rows = problem.evaluate_all(&transform);
+    lap(&mut times.evaluation);
     normalise(rows, cols, &mut work.normalised);
     weighting.final_probabilities(rows, cols, &mut work);
     let mut probabilities = vec![0.0; source_count];
@@ -594,6 +640,7 @@ fn run(
         correspondences,
         histograms,
         trace,
+        times,
     })
 }
 

@@ -167,6 +167,25 @@ pub struct TraceEntry {
     pub correspondences: usize,
 }
 
+/// Wall time of one registration's stages, in seconds (what a profile of the call would show,
+/// without a profiler). `total` also covers validation and noise scales.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Building the target's kd-tree (ICP only).
+    pub index: f64,
+    /// Estimating target normals (point-to-plane without given normals).
+    pub normals: f64,
+    /// Nearest-neighbour matching and residual rows, every iteration.
+    pub matching: f64,
+    /// Fitting the cost (SIE: histogram, σ, k, P(I|r)) and computing the IRLS weights.
+    pub weighting: f64,
+    /// The weighted least-squares step.
+    pub solve: f64,
+    /// Matching every source point at the returned transform for the reported results.
+    pub evaluation: f64,
+    pub total: f64,
+}
+
 /// Everything a registration reports.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegistrationResult {
@@ -198,6 +217,7 @@ pub struct RegistrationResult {
     pub histograms: Vec<HistogramModel>,
     /// Per-iteration trace when `record_trace` is set.
     pub trace: Vec<TraceEntry>,
+    pub times: StageTimes,
 }
 
 /// Why a registration could not run. Nothing is returned with an error.

@@ -1,6 +1,8 @@
 //! The two registration problems the IRLS driver solves: fixed correspondences and ICP.
 //! Each produces residual rows at a transform and solves the weighted step; buffers are reused
 //! across iterations (no per-correspondence allocation per iteration).
+use std::time::Instant;
+
 use nalgebra::Matrix4;
 use rand::SeedableRng;
 
@@ -8,7 +10,7 @@ use super::{Metric, Point, RegistrationConfig};
 use crate::geometry::{Solve, point_to_plane_step, transform_point, weighted_rigid_fit};
 use crate::nn::NearestNeighbours;
 use crate::noise::combine;
-use crate::normals::estimate_normals;
+use crate::normals::estimate_normals_at_data_scale;
 use crate::parallel::Workers;
 
 /// Residual rows of one iteration.
@@ -58,6 +60,10 @@ pub trait Problem {
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64;
     /// Rows for every source point (no sampling) at `transform`, for the reported results.
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows;
+    /// Seconds spent building the index and estimating normals (ICP only).
+    fn setup_seconds(&self) -> (f64, f64) {
+        (0.0, 0.0)
+    }
 }
 
 fn noise_scale(source_sigma: &Option<Vec<f64>>, target_sigma: &Option<Vec<f64>>, s: usize, t: usize) -> f64 {
@@ -154,14 +160,38 @@ impl Problem for CorrespondenceProblem<'_> {
 }
 
 /// A nearest-neighbour match of one source point: target index (u32::MAX = none) and the
-/// transformed source point.
+/// transformed source point, plus what the last kd-tree query for this point found, so that
+/// later iterations can skip the query when it cannot have changed.
+///
+/// Exact skip test: the last query at position q found the nearest target at distance d₁ and
+/// the second nearest at d₂. If the point has since moved by δ = |T·p − q|, every other target
+/// is at least d₂ − δ away and the old nearest at most d₁ + δ, so it is still the nearest when
+/// 2δ < d₂ − d₁. Late ICP iterations move points by far less than the gap, so most queries
+/// become one 3×4 product.
 #[derive(Clone, Copy)]
 struct Match {
     target: u32,
     point: Point,
+    /// Nearest target at the last query.
+    nearest: u32,
+    /// `history` index of the transform of the last query (NEVER_QUERIED: none).
+    queried_at: u32,
+    /// d₂ − d₁ at the last query, rounded down.
+    margin: f32,
 }
 
 const NO_MATCH: u32 = u32::MAX;
+const NEVER_QUERIED: u32 = u32::MAX;
+
+impl Match {
+    const EMPTY: Match = Match {
+        target: NO_MATCH,
+        point: [0.0; 3],
+        nearest: NO_MATCH,
+        queried_at: NEVER_QUERIED,
+        margin: 0.0,
+    };
+}
 
 /// ICP: nearest-neighbour correspondences from a kd-tree built once per target.
 pub struct CloudProblem<'a> {
@@ -170,17 +200,27 @@ pub struct CloudProblem<'a> {
     normals: Vec<Point>,
     metric: Metric,
     index: NearestNeighbours,
-    /// Source points matched in each iteration (all, or a fixed random subset).
+    /// Source points matched in each iteration (all, or a fixed random subset), in
+    /// space-filling-curve order: consecutive queries then visit the same tree nodes, which
+    /// keeps them in cache (random order is several times slower on large clouds).
     sample: Vec<u32>,
+    /// Every source point in that order, for the final evaluation when `sample` is a subset.
+    everything: Vec<u32>,
     source_sigma: Option<Vec<f64>>,
     target_sigma: Option<Vec<f64>>,
     workers: Workers,
     matches: Vec<Match>,
+    /// True while `matches` is laid out along `sample` (its cached queries are reusable).
+    matches_follow_sample: bool,
+    /// Transforms at which queries were made (see `Match`).
+    history: Vec<Matrix4<f64>>,
     rows: Rows,
     /// Transformed source point of each row (point-to-plane linearisation).
     row_points: Vec<Point>,
     pairs: Vec<(Point, Point)>,
     plane_terms: Vec<(Point, Point, Point)>,
+    index_seconds: f64,
+    normals_seconds: f64,
 }
 
 impl<'a> CloudProblem<'a> {
@@ -200,18 +240,26 @@ impl<'a> CloudProblem<'a> {
                 NO_MATCH - 1
             ));
         }
+        let started = Instant::now();
         let index = NearestNeighbours::new(target)?;
+        let index_seconds = started.elapsed().as_secs_f64();
+        let started = Instant::now();
         let normals = match (config.metric, target_normals) {
             (Metric::PointToPoint, _) => Vec::new(),
             (Metric::PointToPlane, Some(given)) => given.to_vec(),
-            (Metric::PointToPlane, None) => estimate_normals(
-                target,
-                &index,
-                config.normal_neighbours.min(target.len()),
-                &workers,
-            ),
+            (Metric::PointToPlane, None) => {
+                estimate_normals_at_data_scale(
+                    target,
+                    &index,
+                    config.normal_neighbours.min(target.len()),
+                    &workers,
+                )
+                .0
+            }
         };
-        let sample = sample_indices(source.len(), config.max_correspondences, config.seed);
+        let normals_seconds = started.elapsed().as_secs_f64();
+        let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);
+        sort_along_curve(source, &mut sample);
         Ok(CloudProblem {
             source,
             target,
@@ -219,45 +267,79 @@ impl<'a> CloudProblem<'a> {
             metric: config.metric,
             index,
             sample,
+            everything: Vec::new(),
             source_sigma,
             target_sigma,
             workers,
             matches: Vec::new(),
+            matches_follow_sample: true,
+            history: Vec::new(),
             rows: Rows::default(),
             row_points: Vec::new(),
             pairs: Vec::new(),
             plane_terms: Vec::new(),
+            index_seconds,
+            normals_seconds,
         })
     }
 
-    /// Matches `indices` (or every source point) at `transform` and fills the rows.
+    /// Matches the sample (or every source point) at `transform` and fills the rows.
     fn match_and_fill(&mut self, transform: &Matrix4<f64>, all: bool) {
-        let count = if all { self.source.len() } else { self.sample.len() };
-        self.matches.resize(
-            count,
-            Match {
-                target: NO_MATCH,
-                point: [0.0; 3],
-            },
-        );
-        let (source, sample, index, normals) = (self.source, &self.sample, &self.index, &self.normals);
+        let subset = self.sample.len() < self.source.len();
+        if all && subset && self.everything.is_empty() {
+            self.everything = (0..self.source.len() as u32).collect();
+            sort_along_curve(self.source, &mut self.everything);
+        }
+        let along_sample = !(all && subset);
+        let order = if along_sample {
+            &self.sample
+        } else {
+            &self.everything
+        };
+        if along_sample != self.matches_follow_sample {
+            // A different layout: the cached queries belong to other points.
+            self.matches.clear();
+            self.matches_follow_sample = along_sample;
+        }
+        self.matches.resize(order.len(), Match::EMPTY);
+        if self.history.len() >= NEVER_QUERIED as usize {
+            self.history.clear();
+            self.matches.fill(Match::EMPTY);
+        }
+        let generation = self.history.len() as u32;
+        // How far each earlier query transform is from this one, applied to a point.
+        let moves: Vec<Matrix4<f64>> = self.history.iter().map(|old| transform - old).collect();
+        self.history.push(*transform);
+        let (source, index, normals) = (self.source, &self.index, &self.normals);
         let plane = self.metric == Metric::PointToPlane;
         self.workers
             .for_each_chunk_mut(&mut self.matches, |start, chunk| {
                 for (k, slot) in chunk.iter_mut().enumerate() {
-                    let s = if all {
-                        start + k
-                    } else {
-                        sample[start + k] as usize
+                    let a = &source[order[start + k] as usize];
+                    let point = transform_point(transform, a);
+                    let unchanged = slot.queried_at != NEVER_QUERIED && {
+                        let moved = transform_point(&moves[slot.queried_at as usize], a);
+                        let moved = (moved[0] * moved[0] + moved[1] * moved[1] + moved[2] * moved[2]).sqrt();
+                        2.0 * moved < f64::from(slot.margin)
                     };
-                    let point = transform_point(transform, &source[s]);
-                    let (t, _) = index.nearest_one(&point);
+                    if !unchanged {
+                        let (nearest, first, second) = index.nearest_two(&point);
+                        slot.nearest = nearest as u32;
+                        slot.queried_at = generation;
+                        // Less a relative 1e-6: covers the rounding of the distances and of the
+                        // conversion to f32 (at most 6e-8 relative).
+                        let gap = (second - first) * (1.0 - 1e-6);
+                        slot.margin = if gap.is_finite() {
+                            (gap as f32).clamp(0.0, f32::MAX)
+                        } else {
+                            f32::MAX
+                        };
+                    }
+                    let t = slot.nearest as usize;
                     // A target point without a normal (degenerate neighbourhood) gives no plane.
                     let usable = !plane || normals[t] != [0.0; 3];
-                    *slot = Match {
-                        target: if usable { t as u32 } else { NO_MATCH },
-                        point,
-                    };
+                    slot.target = if usable { t as u32 } else { NO_MATCH };
+                    slot.point = point;
                 }
             });
         let rows = &mut self.rows;
@@ -267,7 +349,7 @@ impl<'a> CloudProblem<'a> {
             if m.target == NO_MATCH {
                 continue;
             }
-            let s = if all { k } else { sample[k] as usize };
+            let s = order[k] as usize;
             let t = m.target as usize;
             let q = self.target[t];
             let d = [m.point[0] - q[0], m.point[1] - q[1], m.point[2] - q[2]];
@@ -284,6 +366,42 @@ impl<'a> CloudProblem<'a> {
             self.row_points.push(m.point);
         }
     }
+}
+
+/// Reorders `indices` along a Morton (Z-order) curve over the points' bounding box (21 bits
+/// per axis); ties keep index order, so the result is deterministic.
+fn sort_along_curve(points: &[Point], indices: &mut [u32]) {
+    let (mut low, mut high) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for &i in indices.iter() {
+        for axis in 0..3 {
+            low[axis] = low[axis].min(points[i as usize][axis]);
+            high[axis] = high[axis].max(points[i as usize][axis]);
+        }
+    }
+    const CELLS: f64 = ((1u32 << 21) - 1) as f64;
+    let scale: [f64; 3] = std::array::from_fn(|axis| {
+        let extent = high[axis] - low[axis];
+        if extent > 0.0 { CELLS / extent } else { 0.0 }
+    });
+    let key = |i: u32| -> u64 {
+        let p = points[i as usize];
+        (0..3).fold(0, |code, axis| {
+            let cell = ((p[axis] - low[axis]) * scale[axis]).clamp(0.0, CELLS) as u64;
+            code | (spread_bits(cell) << axis)
+        })
+    };
+    indices.sort_by_cached_key(|&i| (key(i), i));
+}
+
+/// Spreads the low 21 bits of `v` so that bit b moves to bit 3b.
+fn spread_bits(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
+    x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
+    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+    x = (x | (x << 2)) & 0x1249_2492_4924_9249;
+    x
 }
 
 /// A fixed, sorted random subset of `limit` source indices (all when `limit` is 0 or ≥ n), so
@@ -360,11 +478,41 @@ impl Problem for CloudProblem<'_> {
         self.match_and_fill(transform, true);
         &self.rows
     }
+
+    fn setup_seconds(&self) -> (f64, f64) {
+        (self.index_seconds, self.normals_seconds)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spread_bits_interleaves() {
+        assert_eq!(spread_bits(0b1), 0b1);
+        assert_eq!(spread_bits(0b11), 0b1001);
+        assert_eq!(spread_bits(0b101), 0b1_000_001);
+        assert_eq!(spread_bits(0x1f_ffff), 0x1249_2492_4924_9249);
+    }
+
+    #[test]
+    fn curve_order_is_a_permutation_that_groups_nearby_points() {
+        // Two far-apart clusters, interleaved in index order: the curve puts each together.
+        let points: Vec<Point> = (0..100)
+            .map(|i| {
+                let base = if i % 2 == 0 { 0.0 } else { 100.0 };
+                [base + (i / 2) as f64 * 1e-3, base, base]
+            })
+            .collect();
+        let mut order: Vec<u32> = (0..100).collect();
+        sort_along_curve(&points, &mut order);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..100).collect::<Vec<u32>>());
+        let switches = order.windows(2).filter(|w| w[0] % 2 != w[1] % 2).count();
+        assert_eq!(switches, 1, "{order:?}");
+    }
 
     #[test]
     fn sampling_is_deterministic_sorted_and_bounded() {
