@@ -504,6 +504,7 @@ fn run(
     };
     for iteration in 1..=config.max_iterations {
         lap(&mut 0.0);
+        problem.set_annealing(matches!(weighting, Weighting::Sie { annealing: true, .. }));
         let rows = problem.linearise(&transform);
         lap(&mut times.matching);
         if rows.is_empty() {

@@ -60,6 +60,9 @@ pub trait Problem {
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64;
     /// Rows for every source point (no sampling) at `transform`, for the reported results.
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows;
+    /// Told before each `linearise` whether β is being annealed: ICP then matches only a
+    /// coarse subset of large samples. No-op by default.
+    fn set_annealing(&mut self, _annealing: bool) {}
     /// Seconds spent building the index and estimating normals (ICP only).
     fn setup_seconds(&self) -> (f64, f64) {
         (0.0, 0.0)
@@ -183,6 +186,31 @@ struct Match {
 const NO_MATCH: u32 = u32::MAX;
 const NEVER_QUERIED: u32 = u32::MAX;
 
+/// While β is annealed the fit needs the basin, not the last digit: at most this many source
+/// points are matched then (σ/√20000 is far below any β level), all of them afterwards.
+const COARSE_POINTS: usize = 20_000;
+
+#[derive(Clone, Copy)]
+enum Which {
+    Sample,
+    Coarse,
+    Everything,
+}
+
+/// Source points matched together, in curve order, with their cached queries.
+#[derive(Default)]
+struct Pass {
+    order: Vec<u32>,
+    matches: Vec<Match>,
+}
+
+impl Pass {
+    fn new(order: Vec<u32>) -> Self {
+        let matches = vec![Match::EMPTY; order.len()];
+        Pass { order, matches }
+    }
+}
+
 impl Match {
     const EMPTY: Match = Match {
         target: NO_MATCH,
@@ -203,15 +231,16 @@ pub struct CloudProblem<'a> {
     /// Source points matched in each iteration (all, or a fixed random subset), in
     /// space-filling-curve order: consecutive queries then visit the same tree nodes, which
     /// keeps them in cache (random order is several times slower on large clouds).
-    sample: Vec<u32>,
-    /// Every source point in that order, for the final evaluation when `sample` is a subset.
-    everything: Vec<u32>,
+    sample: Pass,
+    /// A fixed subset of `sample` (at most COARSE_POINTS) used while β is annealed; empty
+    /// when the sample is small enough.
+    coarse: Pass,
+    use_coarse: bool,
+    /// Every source point, for the final evaluation when `sample` is a subset (filled then).
+    everything: Pass,
     source_sigma: Option<Vec<f64>>,
     target_sigma: Option<Vec<f64>>,
     workers: Workers,
-    matches: Vec<Match>,
-    /// True while `matches` is laid out along `sample` (its cached queries are reusable).
-    matches_follow_sample: bool,
     /// Transforms at which queries were made (see `Match`).
     history: Vec<Matrix4<f64>>,
     rows: Rows,
@@ -260,19 +289,30 @@ impl<'a> CloudProblem<'a> {
         let normals_seconds = started.elapsed().as_secs_f64();
         let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);
         sort_along_curve(source, &mut sample);
+        let coarse = if sample.len() > COARSE_POINTS {
+            // Every (len / COARSE_POINTS)-th by a hash of the index: curve order is kept.
+            let factor = sample.len().div_ceil(COARSE_POINTS) as u64;
+            sample
+                .iter()
+                .copied()
+                .filter(|&i| crate::normals::splitmix64(u64::from(i) ^ config.seed) % factor == 0)
+                .collect()
+        } else {
+            Vec::new()
+        };
         Ok(CloudProblem {
             source,
             target,
             normals,
             metric: config.metric,
             index,
-            sample,
-            everything: Vec::new(),
+            sample: Pass::new(sample),
+            coarse: Pass::new(coarse),
+            use_coarse: false,
+            everything: Pass::default(),
             source_sigma,
             target_sigma,
             workers,
-            matches: Vec::new(),
-            matches_follow_sample: true,
             history: Vec::new(),
             rows: Rows::default(),
             row_points: Vec::new(),
@@ -283,37 +323,51 @@ impl<'a> CloudProblem<'a> {
         })
     }
 
-    /// Matches the sample (or every source point) at `transform` and fills the rows.
+    /// Matches the sample (or its coarse subset, or every source point) at `transform` and
+    /// fills the rows.
     fn match_and_fill(&mut self, transform: &Matrix4<f64>, all: bool) {
-        let subset = self.sample.len() < self.source.len();
-        if all && subset && self.everything.is_empty() {
-            self.everything = (0..self.source.len() as u32).collect();
-            sort_along_curve(self.source, &mut self.everything);
-        }
-        let along_sample = !(all && subset);
-        let order = if along_sample {
-            &self.sample
+        let which = if all && self.sample.order.len() < self.source.len() {
+            if self.everything.order.is_empty() {
+                let mut everything: Vec<u32> = (0..self.source.len() as u32).collect();
+                sort_along_curve(self.source, &mut everything);
+                self.everything = Pass::new(everything);
+            }
+            Which::Everything
+        } else if !all && self.use_coarse && !self.coarse.order.is_empty() {
+            Which::Coarse
         } else {
-            &self.everything
+            Which::Sample
         };
-        if along_sample != self.matches_follow_sample {
-            // A different layout: the cached queries belong to other points.
-            self.matches.clear();
-            self.matches_follow_sample = along_sample;
-        }
-        self.matches.resize(order.len(), Match::EMPTY);
         if self.history.len() >= NEVER_QUERIED as usize {
             self.history.clear();
-            self.matches.fill(Match::EMPTY);
+            for pass in [&mut self.sample, &mut self.coarse, &mut self.everything] {
+                pass.matches.fill(Match::EMPTY);
+            }
         }
         let generation = self.history.len() as u32;
         // How far each earlier query transform is from this one, applied to a point.
         let moves: Vec<Matrix4<f64>> = self.history.iter().map(|old| transform - old).collect();
         self.history.push(*transform);
+        let mut pass = std::mem::take(self.pass_mut(which));
+        self.match_pass(transform, &mut pass, &moves, generation);
+        self.fill_rows(&pass);
+        *self.pass_mut(which) = pass;
+    }
+
+    fn pass_mut(&mut self, which: Which) -> &mut Pass {
+        match which {
+            Which::Sample => &mut self.sample,
+            Which::Coarse => &mut self.coarse,
+            Which::Everything => &mut self.everything,
+        }
+    }
+
+    fn match_pass(&self, transform: &Matrix4<f64>, pass: &mut Pass, moves: &[Matrix4<f64>], generation: u32) {
+        let order = &pass.order;
         let (source, index, normals) = (self.source, &self.index, &self.normals);
         let plane = self.metric == Metric::PointToPlane;
         self.workers
-            .for_each_chunk_mut(&mut self.matches, |start, chunk| {
+            .for_each_chunk_mut(&mut pass.matches, |start, chunk| {
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     let a = &source[order[start + k] as usize];
                     let point = transform_point(transform, a);
@@ -342,10 +396,15 @@ impl<'a> CloudProblem<'a> {
                     slot.point = point;
                 }
             });
+    }
+
+    fn fill_rows(&mut self, pass: &Pass) {
+        let (order, normals) = (&pass.order, &self.normals);
+        let plane = self.metric == Metric::PointToPlane;
         let rows = &mut self.rows;
         rows.clear();
         self.row_points.clear();
-        for (k, m) in self.matches.iter().enumerate() {
+        for (k, m) in pass.matches.iter().enumerate() {
             if m.target == NO_MATCH {
                 continue;
             }
@@ -477,6 +536,10 @@ impl Problem for CloudProblem<'_> {
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, true);
         &self.rows
+    }
+
+    fn set_annealing(&mut self, annealing: bool) {
+        self.use_coarse = annealing;
     }
 
     fn setup_seconds(&self) -> (f64, f64) {
