@@ -1,0 +1,72 @@
+#!/usr/bin/env python3
+"""Markdown tables from the benchmark's CSV files (bench/run.sh): time, accuracy and the ratio
+of each library's time to sie's at the same size and thread count, then sie's stage times.
+
+    python3 bench/report.py FILE.csv [FILE.csv ...]
+
+sie rows come from bench_icp (stage times in `note`); compare_pcl also writes sie rows, which
+are dropped here in favour of bench_icp's so every sie number comes from one program.
+"""
+import csv
+import sys
+from collections import defaultdict
+
+
+def read_rows(paths):
+    rows = []
+    for path in paths:
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                if row["library"] == "sie" and "index=" not in row["note"]:
+                    continue  # compare_pcl's own sie rows
+                rows.append(row)
+    return rows
+
+
+def stages(note):
+    return {k: float(v) for k, v in (p.split("=") for p in note.split() if "=" in p) if k != "repeats"}
+
+
+def fmt_seconds(s):
+    return f"{s:.3f}" if s < 10 else f"{s:.1f}"
+
+
+def main(paths):
+    rows = read_rows(paths)
+    sie = {(int(r["points"]), int(r["threads"])): float(r["seconds"]) for r in rows if r["library"] == "sie"}
+    by_size = defaultdict(list)
+    for r in rows:
+        by_size[int(r["points"])].append(r)
+    print("| points | library, method | threads | seconds | time / sie's | iterations "
+          "| rotation error (°) | translation error (mm) | converged |")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---|")
+    order = {"sie": 0, "small_gicp": 1, "open3d": 2, "pcl": 3}
+    for n in sorted(by_size):
+        for r in sorted(by_size[n], key=lambda r: (order.get(r["library"], 9), r["method"], int(r["threads"]))):
+            seconds = float(r["seconds"])
+            base = sie.get((n, int(r["threads"])))
+            ratio = f"{seconds / base:.2f}" if base else "–"
+            rot = f"{float(r['rotation_error_deg']):.3f}" if r["rotation_error_deg"] else "–"
+            trans = f"{1000 * float(r['translation_error_m']):.1f}" if r["translation_error_m"] else "–"
+            print(f"| {n} | {r['library']}, {r['method']} | {r['threads']} | {fmt_seconds(seconds)} | {ratio} "
+                  f"| {r['iterations'] or '–'} | {rot} | {trans} | {r['converged'] or '–'} |")
+    print()
+    print("sie's stages (seconds; the SIE fit is `weighting`: histogram, σ, k, P(I|r) and weights):")
+    print()
+    print("| points | threads | total | kd-tree | normals | matching | SIE fit | solve | final evaluation "
+          "| iterations | SIE fit / iteration |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        if r["library"] != "sie":
+            continue
+        s = stages(r["note"])
+        loop = s["matching"] + s["weighting"] + s["solve"]
+        print(f"| {r['points']} | {r['threads']} | {fmt_seconds(float(r['seconds']))} | {s['index']:.3f} "
+              f"| {s['normals']:.3f} | {s['matching']:.3f} | {s['weighting']:.3f} | {s['solve']:.3f} "
+              f"| {s['evaluation']:.3f} | {r['iterations']} | {100 * s['weighting'] / loop:.0f} % |")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        sys.exit(__doc__)
+    main(sys.argv[1:])
