@@ -46,45 +46,85 @@ const SCALE_PROBES: usize = 512;
 const THINNING_STEP: usize = 4;
 const MAX_THINNING: usize = 256;
 
-/// [`estimate_normals`] with the neighbourhood scale chosen from the data: when the k nearest
-/// neighbours are so close that sensor noise dominates them (dense, noisy clouds: 1 M points of
-/// a room at 1 cm noise), the normals come from the k nearest points of a thinned copy of the
-/// cloud instead, thinned just enough for the median neighbourhood to be a plane (thickness
-/// ratio below [`NOISY_NEIGHBOURHOOD_RATIO`]). Thinning stops when it no longer helps as noise
-/// would (the ratio drops by less than a quarter: curvature or a volumetric cloud) and keeps at
-/// least 20·k points. Returns the normals and the thinning factor used (1 = plain k-NN).
+/// [`estimate_normals`] with the neighbourhood scale chosen from the data (see
+/// [`NormalScale::choose`]). Returns the normals and the thinning factor used (1 = plain k-NN).
 pub fn estimate_normals_at_data_scale(
     points: &[Point],
     index: &NearestNeighbours,
     k: usize,
     workers: &Workers,
 ) -> (Vec<Point>, usize) {
-    let probes: Vec<Point> = (0..SCALE_PROBES.min(points.len()))
-        .map(|j| points[j * points.len() / SCALE_PROBES.min(points.len())])
-        .collect();
-    let mut ratio = median_thickness(&probes, points, index, k);
-    let mut chosen: Option<(usize, Vec<Point>, NearestNeighbours)> = None;
-    let mut factor = 1;
-    while ratio > NOISY_NEIGHBOURHOOD_RATIO && factor * THINNING_STEP <= MAX_THINNING {
-        let next = factor * THINNING_STEP;
-        let thinned = thin(points, next);
-        if thinned.len() < 20 * k.max(1) {
-            break;
-        }
-        let Ok(thin_index) = NearestNeighbours::new(&thinned) else {
-            break;
+    let scale = NormalScale::choose(points, index, k);
+    (
+        scale.normals_at(points, index, points, k, workers),
+        scale.factor(),
+    )
+}
+
+/// Where the k neighbours of a normal come from: the cloud itself, or a thinned copy of it
+/// when the cloud is dense relative to its noise.
+pub struct NormalScale {
+    factor: usize,
+    thinned: Option<(Vec<Point>, NearestNeighbours)>,
+}
+
+impl NormalScale {
+    /// When the k nearest neighbours are so close that sensor noise dominates them (dense,
+    /// noisy clouds: 1 M points of a room at 1 cm noise), the normals come from the k nearest
+    /// points of a thinned copy of the cloud instead, thinned just enough for the median
+    /// neighbourhood to be a plane (thickness ratio below [`NOISY_NEIGHBOURHOOD_RATIO`]).
+    /// Thinning stops when it no longer helps as noise would (the ratio drops by less than a
+    /// quarter: curvature or a volumetric cloud) and keeps at least 20·k points.
+    /// `index` is built on `points`.
+    pub fn choose(points: &[Point], index: &NearestNeighbours, k: usize) -> Self {
+        let probes: Vec<Point> = (0..SCALE_PROBES.min(points.len()))
+            .map(|j| points[j * points.len() / SCALE_PROBES.min(points.len())])
+            .collect();
+        let mut ratio = median_thickness(&probes, points, index, k);
+        let mut chosen = NormalScale {
+            factor: 1,
+            thinned: None,
         };
-        let thinner = median_thickness(&probes, &thinned, &thin_index, k);
-        if thinner > 0.75 * ratio {
-            break;
+        while ratio > NOISY_NEIGHBOURHOOD_RATIO && chosen.factor * THINNING_STEP <= MAX_THINNING {
+            let next = chosen.factor * THINNING_STEP;
+            let thinned = thin(points, next);
+            if thinned.len() < 20 * k.max(1) {
+                break;
+            }
+            let Ok(thin_index) = NearestNeighbours::new(&thinned) else {
+                break;
+            };
+            let thinner = median_thickness(&probes, &thinned, &thin_index, k);
+            if thinner > 0.75 * ratio {
+                break;
+            }
+            ratio = thinner;
+            chosen = NormalScale {
+                factor: next,
+                thinned: Some((thinned, thin_index)),
+            };
         }
-        (ratio, factor) = (thinner, next);
-        chosen = Some((next, thinned, thin_index));
+        chosen
     }
-    match chosen {
-        None => (estimate_normals(points, index, k, workers), 1),
-        Some((factor, thinned, thin_index)) => {
-            (normals_from(points, &thinned, &thin_index, k, workers), factor)
+
+    /// One point in `factor` is used for neighbourhoods (1 = the whole cloud).
+    pub fn factor(&self) -> usize {
+        self.factor
+    }
+
+    /// Normals at `queries` from their k nearest points at this scale; `points` and `index` are
+    /// the cloud `choose` was given.
+    pub fn normals_at(
+        &self,
+        points: &[Point],
+        index: &NearestNeighbours,
+        queries: &[Point],
+        k: usize,
+        workers: &Workers,
+    ) -> Vec<Point> {
+        match &self.thinned {
+            None => normals_from(queries, points, index, k, workers),
+            Some((thinned, thin_index)) => normals_from(queries, thinned, thin_index, k, workers),
         }
     }
 }

@@ -10,8 +10,9 @@ use std::num::NonZeroUsize;
 use std::sync::Mutex;
 
 /// Work items per chunk; fixed so that chunking (and any per-chunk reduction order) is the
-/// same for 1 or N threads.
-pub const CHUNK: usize = 4096;
+/// same for 1 or N threads. Small enough that the 5 000-point coarse ICP passes split into
+/// several chunks for two threads (10k pair, 2 threads: 0.041 → 0.035 s against 4096).
+pub const CHUNK: usize = 1024;
 
 /// How many threads a registration may use (the caller's thread included).
 pub struct Workers {
