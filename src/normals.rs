@@ -54,7 +54,7 @@ pub fn estimate_normals_at_data_scale(
     k: usize,
     workers: &Workers,
 ) -> (Vec<Point>, usize) {
-    let scale = NormalScale::choose(points, index, k);
+    let scale = NormalScale::choose(points, None, index, k);
     (
         scale.normals_at(points, index, points, k, workers),
         scale.factor(),
@@ -75,8 +75,9 @@ impl NormalScale {
     /// neighbourhood to be a plane (thickness ratio below [`NOISY_NEIGHBOURHOOD_RATIO`]).
     /// Thinning stops when it no longer helps as noise would (the ratio drops by less than a
     /// quarter: curvature or a volumetric cloud) and keeps at least 20·k points.
-    /// `index` is built on `points`.
-    pub fn choose(points: &[Point], index: &NearestNeighbours, k: usize) -> Self {
+    /// `index` is built on `points`. `ids[i]` names point i for the thinning hash (default: i),
+    /// so a reordered copy of a cloud is thinned to the same points.
+    pub fn choose(points: &[Point], ids: Option<&[u32]>, index: &NearestNeighbours, k: usize) -> Self {
         let probes: Vec<Point> = (0..SCALE_PROBES.min(points.len()))
             .map(|j| points[j * points.len() / SCALE_PROBES.min(points.len())])
             .collect();
@@ -87,7 +88,7 @@ impl NormalScale {
         };
         while ratio > NOISY_NEIGHBOURHOOD_RATIO && chosen.factor * THINNING_STEP <= MAX_THINNING {
             let next = chosen.factor * THINNING_STEP;
-            let thinned = thin(points, next);
+            let thinned = thin(points, ids, next);
             if thinned.len() < 20 * k.max(1) {
                 break;
             }
@@ -131,11 +132,12 @@ impl NormalScale {
 
 /// About one point in `factor`, chosen by a hash of the index (no aliasing with the row
 /// structure of organised clouds, and deterministic).
-fn thin(points: &[Point], factor: usize) -> Vec<Point> {
+fn thin(points: &[Point], ids: Option<&[u32]>, factor: usize) -> Vec<Point> {
+    let id = |i: usize| ids.map_or(i as u64, |ids| u64::from(ids[i]));
     points
         .iter()
         .enumerate()
-        .filter(|(i, _)| splitmix64(*i as u64) % factor as u64 == 0)
+        .filter(|(i, _)| splitmix64(id(*i)) % factor as u64 == 0)
         .map(|(_, p)| *p)
         .collect()
 }
