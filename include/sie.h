@@ -702,9 +702,10 @@ sie_status sie_context_set_progress_callback(struct sie_context *ctx,
  * `sie_context_register_with_normals` to pass them).
  *
  * `init_T_target_source`: initial guess, 16 doubles ROW-major (T[4*row + col]; transpose
- * Eigen's default column-major storage), a rigid transform with last row 0 0 0 1; NULL =
- * identity. `out_T_target_source` (16 doubles, row-major) is written only on success; it may
- * be the same array as the initial guess.
+ * Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 and rotation
+ * block orthonormal with det +1, both to 1e-6 (rounding from a matrix inverse is fine; the
+ * guess is made exactly rigid); NULL = identity. `out_T_target_source` (16 doubles,
+ * row-major) is written only on success; it may be the same array as the initial guess.
  *
  * On success the result is stored in the context for the `sie_context_get_*` functions; on
  * any error the previous result is discarded. Non-convergence is not an error (see

@@ -80,7 +80,9 @@ pub fn centroid(points: &[Point]) -> Point {
 }
 
 /// Checks that `matrix` (named `name` in messages) is a homogeneous rigid transform: finite,
-/// last row exactly 0 0 0 1, rotation block orthonormal to 1e-6 with det +1.
+/// last row 0 0 0 1 and rotation block orthonormal, both to 1e-6 (a guess composed with a
+/// general 4×4 inverse, e.g. Eigen's `inverse()`, carries rounding in both), det +1.
+/// [`orthonormalised`] then makes it exact.
 pub fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), String> {
     // Row-major index, as C callers store it.
     if let Some(index) = matrix.transpose().iter().position(|v| !v.is_finite()) {
@@ -90,7 +92,7 @@ pub fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), String> {
         ));
     }
     let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
-    if last_row != [0.0, 0.0, 0.0, 1.0] {
+    if !homogeneous_last_row(matrix) {
         return Err(format!(
             "{name}: last row is {last_row:?}; a homogeneous transform ends in 0 0 0 1 (row-major)"
         ));
@@ -112,7 +114,13 @@ pub fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation.
+/// True when the last row is 0 0 0 1 to within the rigid-transform tolerance (1e-6).
+pub(crate) fn homogeneous_last_row(matrix: &Matrix4<f64>) -> bool {
+    (0..4).all(|col| (matrix[(3, col)] - if col == 3 { 1.0 } else { 0.0 }).abs() <= ROTATION_TOLERANCE)
+}
+
+/// Projects the rotation block onto SO(3) (nearest rotation), keeping the translation; the last
+/// row becomes exactly 0 0 0 1.
 pub fn orthonormalised(t: &Matrix4<f64>) -> Matrix4<f64> {
     let svd = rotation_part(t).svd(true, true);
     let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
@@ -242,6 +250,23 @@ mod tests {
     fn example_transform() -> Matrix4<f64> {
         let r = Rotation3::from_euler_angles(0.3, -0.2, 0.5);
         Translation3::new(0.4, -1.0, 2.0).to_homogeneous() * r.to_homogeneous()
+    }
+
+    /// A guess built with a general 4×4 inverse has rounding in its last row; that is accepted
+    /// and made exact, a real non-rigid last row is not.
+    #[test]
+    fn last_row_rounding_is_accepted_and_removed() {
+        let mut rounded = example_transform();
+        rounded[(3, 3)] = 0.999_999_999_999_999_8;
+        rounded[(3, 1)] = -1e-17;
+        assert_eq!(check_rigid(&rounded, "guess"), Ok(()));
+        let exact = orthonormalised(&rounded);
+        assert_eq!(exact.row(3), Matrix4::<f64>::identity().row(3));
+        assert!((exact - example_transform()).amax() < 1e-12);
+        let mut column_major = example_transform();
+        column_major[(3, 0)] = 0.4;
+        let message = check_rigid(&column_major, "guess").unwrap_err();
+        assert!(message.contains("last row"), "{message}");
     }
 
     fn cube_points() -> Vec<Point> {

@@ -578,13 +578,15 @@ fn parse_transform(text: &str) -> Result<Matrix4<f64>, String> {
         16 => {}
         n => return Err(format!("expected 16 numbers (4×4) or 12 (3×4), found {n}")),
     }
-    let matrix = Matrix4::from_row_slice(&values);
+    let mut matrix = Matrix4::from_row_slice(&values);
     let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
-    if last_row != [0.0, 0.0, 0.0, 1.0] {
+    if !crate::geometry::homogeneous_last_row(&matrix) {
         return Err(format!(
             "the last row must be 0 0 0 1 for a rigid transform, found {last_row:?}"
         ));
     }
+    // Printed rounding (e.g. 0.99999999999999978 from an inverted matrix) is removed.
+    matrix.set_row(3, &nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));
     Ok(matrix)
 }
 

@@ -552,6 +552,10 @@ fn transforms_are_row_major_and_must_be_rigid() {
     bad[12] = 1.0;
     let error = unsafe { read_transform(bad.as_ptr(), "init") }.unwrap_err();
     assert!(error.message.contains("last row"), "{}", error.message);
+    // Rounding left by a general matrix inverse is accepted.
+    let mut rounded = row_major_t;
+    rounded[15] = 0.999_999_999_999_999_8;
+    assert!(unsafe { read_transform(rounded.as_ptr(), "init") }.is_ok());
     let mut bad = row_major_t;
     bad[7] = f64::NAN;
     let error = unsafe { read_transform(bad.as_ptr(), "init") }.unwrap_err();

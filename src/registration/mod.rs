@@ -171,9 +171,12 @@ pub struct TraceEntry {
 /// without a profiler). `total` also covers validation and noise scales.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimes {
-    /// Building the target's kd-tree (ICP only).
+    /// Building the target's kd-tree, including sorting the target along a space-filling
+    /// curve (ICP only).
     pub index: f64,
-    /// Estimating target normals (point-to-plane without given normals).
+    /// Estimating target normals (point-to-plane without given normals): choosing the scale up
+    /// front, then each normal when matching first reaches its point (not counted in
+    /// `matching` or `evaluation`).
     pub normals: f64,
     /// Nearest-neighbour matching and residual rows, every iteration.
     pub matching: f64,

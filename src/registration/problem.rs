@@ -294,6 +294,13 @@ impl<'a> CloudProblem<'a> {
                 NO_MATCH - 1
             ));
         }
+        if target.len() > u32::MAX as usize {
+            return Err(format!(
+                "target has {} points; at most {} are supported",
+                target.len(),
+                u32::MAX
+            ));
+        }
         let started = Instant::now();
         let mut target_order: Vec<u32> = (0..target.len() as u32).collect();
         sort_along_curve(target, &mut target_order);
