@@ -456,28 +456,28 @@ impl<'a> CloudProblem<'a> {
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
                             < f64::from(slot.margin);
-                    // Early on, updates move points by more than the typical gap, so a cached
-                    // margin would not be used: the cheaper nearest-only query (about half the
-                    // cost) is then enough, and margin 0 means "query again".
-                    let moving_fast =
-                        last_move.is_some_and(|m| 2.0 * length(&transform_point(m, a)) >= typical_margin);
-                    if !unchanged && moving_fast {
-                        let (nearest, _) = index.nearest_one(&point);
-                        slot.nearest = nearest as u32;
+                    if !unchanged {
                         slot.queried_at = generation;
-                        slot.margin = 0.0;
-                    } else if !unchanged {
-                        let (nearest, first, second) = index.nearest_two(&point);
-                        slot.nearest = nearest as u32;
-                        slot.queried_at = generation;
-                        // Less a relative 1e-6: covers the rounding of the distances and of the
-                        // conversion to f32 (at most 6e-8 relative).
-                        let gap = (second - first) * (1.0 - 1e-6);
-                        slot.margin = if gap.is_finite() {
-                            (gap as f32).clamp(0.0, f32::MAX)
+                        // Early on, updates move points by more than the typical gap, so a
+                        // cached margin would not be used: the cheaper nearest-only query
+                        // (about half the cost) is then enough, and margin 0 means "query again".
+                        let moving_fast =
+                            last_move.is_some_and(|m| 2.0 * length(&transform_point(m, a)) >= typical_margin);
+                        if moving_fast {
+                            slot.nearest = index.nearest_one(&point).0 as u32;
+                            slot.margin = 0.0;
                         } else {
-                            f32::MAX
-                        };
+                            let (nearest, first, second) = index.nearest_two(&point);
+                            slot.nearest = nearest as u32;
+                            // Less a relative 1e-6: covers the rounding of the distances and of
+                            // the conversion to f32 (at most 6e-8 relative).
+                            let gap = (second - first) * (1.0 - 1e-6);
+                            slot.margin = if gap.is_finite() {
+                                (gap as f32).clamp(0.0, f32::MAX)
+                            } else {
+                                f32::MAX
+                            };
+                        }
                     }
                     slot.point = point;
                 }
