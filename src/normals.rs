@@ -40,6 +40,11 @@ pub fn estimate_normals(
 /// of its in-plane spread (middle eigenvalue) is dominated by noise: about 4σ²/R² for noise σ
 /// and radius R, so 0.05 asks for R ≳ 9σ (a normal within a few degrees from k = 10).
 const NOISY_NEIGHBOURHOOD_RATIO: f64 = 0.05;
+/// Above this thickness ratio the k nearest points form a ball inside the noise rather than a
+/// patch of a surface (a very dense noisy cloud: 10 M points of a room at 1 cm noise, 3.5 mm
+/// apart). Thinning then leaves the ratio where it is until the neighbourhood outgrows the
+/// noise, so a step that does not help is no reason to stop there.
+const BALL_NEIGHBOURHOOD_RATIO: f64 = 0.25;
 /// Neighbourhoods sampled to measure that ratio.
 const SCALE_PROBES: usize = 512;
 /// Each step keeps one point in 4, which doubles the radius of k neighbours on a surface.
@@ -74,7 +79,8 @@ impl NormalScale {
     /// points of a thinned copy of the cloud instead, thinned just enough for the median
     /// neighbourhood to be a plane (thickness ratio below [`NOISY_NEIGHBOURHOOD_RATIO`]).
     /// Thinning stops when it no longer helps as noise would (the ratio drops by less than a
-    /// quarter: curvature or a volumetric cloud) and keeps at least 20·k points.
+    /// quarter: curvature or a volumetric cloud), except while the neighbourhoods are still
+    /// balls inside the noise ([`BALL_NEIGHBOURHOOD_RATIO`]), and keeps at least 20·k points.
     /// `index` is built on `points`. `ids[i]` names point i for the thinning hash (default: i),
     /// so a reordered copy of a cloud is thinned to the same points.
     pub fn choose(points: &[Point], ids: Option<&[u32]>, index: &NearestNeighbours, k: usize) -> Self {
@@ -86,9 +92,11 @@ impl NormalScale {
             factor: 1,
             thinned: None,
         };
-        while ratio > NOISY_NEIGHBOURHOOD_RATIO && chosen.factor * THINNING_STEP <= MAX_THINNING {
-            let next = chosen.factor * THINNING_STEP;
-            let thinned = thin(points, ids, next);
+        // The ratio of the last factor tried, accepted or not.
+        let (mut trial, mut trial_ratio) = (1, ratio);
+        while ratio > NOISY_NEIGHBOURHOOD_RATIO && trial * THINNING_STEP <= MAX_THINNING {
+            trial *= THINNING_STEP;
+            let thinned = thin(points, ids, trial);
             if thinned.len() < 20 * k.max(1) {
                 break;
             }
@@ -96,14 +104,18 @@ impl NormalScale {
                 break;
             };
             let thinner = median_thickness(&probes, &thinned, &thin_index, k);
-            if thinner > 0.75 * ratio {
+            let improved = thinner <= 0.75 * trial_ratio && thinner < ratio;
+            let in_ball = trial_ratio > BALL_NEIGHBOURHOOD_RATIO;
+            trial_ratio = thinner;
+            if improved {
+                ratio = thinner;
+                chosen = NormalScale {
+                    factor: trial,
+                    thinned: Some((thinned, thin_index)),
+                };
+            } else if !in_ball {
                 break;
             }
-            ratio = thinner;
-            chosen = NormalScale {
-                factor: next,
-                thinned: Some((thinned, thin_index)),
-            };
         }
         chosen
     }
@@ -491,6 +503,32 @@ mod tests {
         let (scaled, factor) = estimate_normals_at_data_scale(&clean, &index, 10, &workers);
         assert_eq!(factor, 1);
         assert_eq!(scaled, estimate_normals(&clean, &index, 10, &workers));
+    }
+
+    /// 200 000 points on a 4 × 4 plane with σ = 3 cm: the 10 nearest points lie within ~1.6 cm,
+    /// a ball inside the noise whose thickness ratio the first thinning steps do not change.
+    /// Thinning must go on until the neighbourhoods outgrow the noise (the 10 M-point room).
+    #[test]
+    fn data_scale_thins_through_noise_balls() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(12);
+        let normal = [0.0, 0.0, 1.0];
+        let workers = Workers::new(2).unwrap();
+        let noisy = noisy_plane(&mut rng, &normal, &[0.0, 0.0, -2.0], 200_000, 0.03);
+        let index = NearestNeighbours::new(&noisy).unwrap();
+        let probes: Vec<Point> = noisy.iter().step_by(400).copied().collect();
+        let plain_ratio = median_thickness(&probes, &noisy, &index, 10);
+        assert!(
+            plain_ratio > BALL_NEIGHBOURHOOD_RATIO,
+            "plain ratio {plain_ratio}"
+        );
+        let (scaled, factor) = estimate_normals_at_data_scale(&noisy, &index, 10, &workers);
+        let mut errors: Vec<f64> = scaled[..2000]
+            .iter()
+            .map(|n| angle_degrees(n, &normal).min(angle_degrees(n, &normal.map(|c| -c))))
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        assert!(factor >= 64, "factor {factor}");
+        assert!(errors[1000] < 10.0, "median error {}°", errors[1000]);
     }
 
     #[test]
