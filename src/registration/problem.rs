@@ -402,7 +402,8 @@ impl<'a> CloudProblem<'a> {
             }
         }
         self.estimate_missing_normals(&pass);
-        self.fill_rows(&pass);
+        // The final evaluation (`all`) is not solved: no solver terms for it.
+        self.fill_rows(&pass, !all);
         *self.pass_mut(which) = pass;
     }
 
@@ -484,8 +485,9 @@ impl<'a> CloudProblem<'a> {
             });
     }
 
-    /// Rows (in the caller's indices) and the solver's per-row terms of the matched pairs.
-    fn fill_rows(&mut self, pass: &Pass) {
+    /// Rows (in the caller's indices) and, with `solver_terms`, the solver's per-row terms of
+    /// the matched pairs.
+    fn fill_rows(&mut self, pass: &Pass, solver_terms: bool) {
         let normals = &self.normals;
         let plane = self.metric == Metric::PointToPlane;
         let rows = &mut self.rows;
@@ -507,14 +509,19 @@ impl<'a> CloudProblem<'a> {
             if plane {
                 let n = normals[t];
                 rows.residual.push(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]);
-                self.plane_terms.push((m.point, q, n));
             } else {
                 rows.residual.extend_from_slice(&d);
-                self.pairs.push((a, q));
             }
             rows.scale
                 .push(noise_scale(&self.source_sigma, &self.target_sigma, s, original_t));
-            self.row_sources.push(a);
+            if solver_terms {
+                if plane {
+                    self.plane_terms.push((m.point, q, normals[t]));
+                } else {
+                    self.pairs.push((a, q));
+                }
+                self.row_sources.push(a);
+            }
         }
     }
 }
