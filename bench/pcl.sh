@@ -12,7 +12,8 @@
 #
 # Per size: one compare_pcl run for PCL (both variants; single-threaded) and sie with 1 thread,
 # one for sie alone with 2 threads, each method timed as the median of 3 runs for N <= 100000
-# and of 1 run above. Both runs use --max-distance 0.5 (PCL only; sie has no such threshold)
+# and of 1 run above. Both runs use --max-distance 0.5 (PCL only; sie has no such threshold;
+# SIE_BENCH_MAX_DIST overrides it)
 # and --iterations 100 (PCL's cap; sie keeps its defaults), from the identity. stdout: one CSV
 # header and the rows of every run (columns: see examples-cpp/compare_pcl.cpp); diagnostics
 # and build output go to stderr.
@@ -79,7 +80,7 @@ run() {
   if [ "$n" -le 100000 ]; then repeats=3; fi
   echo ">> N=$n: compare_pcl --repeats $repeats $*" >&2
   local start=$SECONDS status=0
-  "$compare" --csv --max-distance 0.5 --iterations 100 --repeats "$repeats" "$@" \
+  "$compare" --csv --max-distance "${SIE_BENCH_MAX_DIST:-0.5}" --iterations 100 --repeats "$repeats" "$@" \
     "$dir/room_${n}_source.pcd" "$dir/room_${n}_target.pcd" "$dir/room_${n}_gt.txt" >"$out" || status=$?
   # Exit status 1: sie missed compare_pcl's default accuracy check (1 deg, 5 mm) or failed;
   # its rows (if any) are still reported. Anything else is an error.

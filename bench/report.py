@@ -27,6 +27,13 @@ def stages(note):
     return {k: float(v) for k, v in (p.split("=") for p in note.split() if "=" in p) if k != "repeats"}
 
 
+def label(row):
+    """Library and method, plus the correspondence cut-off where the library has one."""
+    cut = [p.split("=")[1] for p in row["note"].split() if p.startswith("maxdist=")]
+    text = f"{row['library']}, {row['method']}"
+    return f"{text}, max distance {cut[0]} m" if cut and row["library"] != "sie" else text
+
+
 def fmt_seconds(s):
     return f"{s:.3f}" if s < 10 else f"{s:.1f}"
 
@@ -42,13 +49,13 @@ def main(paths):
     print("|---:|---|---:|---:|---:|---:|---:|---:|---|")
     order = {"sie": 0, "small_gicp": 1, "open3d": 2, "pcl": 3}
     for n in sorted(by_size):
-        for r in sorted(by_size[n], key=lambda r: (order.get(r["library"], 9), r["method"], int(r["threads"]))):
+        for r in sorted(by_size[n], key=lambda r: (order.get(r["library"], 9), label(r), int(r["threads"]))):
             seconds = float(r["seconds"])
             base = sie.get((n, int(r["threads"])))
             ratio = f"{seconds / base:.2f}" if base else "–"
             rot = f"{float(r['rotation_error_deg']):.3f}" if r["rotation_error_deg"] else "–"
             trans = f"{1000 * float(r['translation_error_m']):.1f}" if r["translation_error_m"] else "–"
-            print(f"| {n} | {r['library']}, {r['method']} | {r['threads']} | {fmt_seconds(seconds)} | {ratio} "
+            print(f"| {n} | {label(r)} | {r['threads']} | {fmt_seconds(seconds)} | {ratio} "
                   f"| {r['iterations'] or '–'} | {rot} | {trans} | {r['converged'] or '–'} |")
     print()
     print("sie's stages (seconds; the SIE fit is `weighting`: histogram, σ, k, P(I|r) and weights):")
