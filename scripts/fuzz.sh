@@ -11,10 +11,13 @@ export RUSTC_BOOTSTRAP=1
 passed=0
 for target in estimate_inliers register_correspondences cloud_readers; do
   echo "== fuzz $target for ${seconds}s"
+  # cargo fuzz exits non-zero on a crash; PIPESTATUS keeps that through the filter (read
+  # right after the pipeline: a following `|| true` would replace it with true's status).
+  set +e
   cargo fuzz run "$target" -- -max_total_time="$seconds" -rss_limit_mb=4096 -print_final_stats=1 2>&1 \
-    | grep -E "^(Done|stat::number_of_executed_units|==[0-9]+==ERROR|SUMMARY)|panicked|Test unit written" || true
-  # cargo fuzz exits non-zero on a crash; PIPESTATUS keeps that through the filter.
+    | grep -E "^(Done|stat::number_of_executed_units|==[0-9]+==ERROR|SUMMARY)|panicked|Test unit written"
   status=${PIPESTATUS[0]}
+  set -e
   if [ "$status" -ne 0 ]; then
     echo "fuzz target $target failed (exit $status); the crashing input is in fuzz/artifacts/$target/"
     echo "fuzz: $passed passed, 1 failed"

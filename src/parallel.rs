@@ -49,10 +49,15 @@ impl Workers {
             }
         };
         std::thread::scope(|scope| {
-            for _ in 1..threads {
-                scope.spawn(work);
-            }
+            let helpers: Vec<_> = (1..threads).map(|_| scope.spawn(work)).collect();
             work();
+            // Join explicitly: `scope` alone returns once the closures are done, while the OS
+            // threads may still be tearing down (valgrind then sees their TLS at a host's exit).
+            for helper in helpers {
+                if let Err(panic) = helper.join() {
+                    std::panic::resume_unwind(panic);
+                }
+            }
         });
     }
 }

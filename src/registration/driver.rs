@@ -22,6 +22,8 @@ const LEVEL_TOLERANCE: f64 = 0.01;
 /// can wander at the scale of σ+β without settling (the authors' driver likewise makes at most
 /// 3 model updates per level).
 const MAX_LEVEL_ITERATIONS: u32 = 5;
+/// Largest residual magnitude `estimate_inliers` accepts (see there).
+const MAX_RESIDUAL: f64 = 1e140;
 /// δ of eq. (regprob3GGD) relative to σ+β: bounds the weight max(‖r‖, δ)^(p-2) for p < 2.
 const SHAPE_DELTA: f64 = 1e-3;
 
@@ -208,7 +210,8 @@ pub fn register_clouds(
 
 /// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
 /// given; β is the regulariser (0 for none). Fits with k = k₀, then adapts k from P(I|H) and
-/// refits (§4.5), and returns P(I|R_i) per row.
+/// refits (§4.5), and returns P(I|R_i) per row. Scaled residuals above 1e140 in magnitude are
+/// refused (their squares would overflow in the fit).
 pub fn estimate_inliers(
     residuals: &[f64],
     cols: usize,
@@ -258,6 +261,15 @@ pub fn estimate_inliers(
                 .collect()
         }
     };
+    // Squares of the residuals are summed (RMS start, histogram moments): beyond this they
+    // overflow and the fit would end with an infinite σ.
+    if let Some(i) = normalised.iter().position(|v| v.abs() > MAX_RESIDUAL) {
+        return Err(Error::InvalidArgument(format!(
+            "residual {i} is {:e} after row scaling; magnitudes above {MAX_RESIDUAL:e} cannot be squared \
+             and summed without overflow (rescale the residuals)",
+            normalised[i]
+        )));
+    }
     let mut sie = SieEstimator::new(options.clone());
     sie.prepare(&normalised, cols);
     sie.set_beta(&[beta]);
