@@ -463,6 +463,27 @@ std::string cpu_name() {
     return "unknown CPU";
 }
 
+// The row of a finished PCL run started at `start`; `settings` goes into the CSV note.
+template <typename Icp>
+Row pcl_row(Icp &icp, Clock::time_point start, const char *method, const char *csv_method, double max_distance,
+            bool with_rmse, const std::string &settings) {
+    Row row;
+    row.milliseconds = milliseconds_since(start);
+    row.method = method;
+    row.transform = icp.getFinalTransformation();
+    row.iterations = icp.iterations();
+    row.stop = pcl_stop(icp);
+    if (with_rmse) {
+        row.own_rmse = std::sqrt(icp.getFitnessScore(max_distance));
+    }
+    row.library = "pcl";
+    row.csv_method = csv_method;
+    row.threads = 1; // pcl::NormalEstimation (not the OpenMP variant) and ICP: one thread
+    row.converged = icp.hasConverged();
+    row.note = settings + " stop=" + pcl_state(icp);
+    return row;
+}
+
 // Runs `run` `repeats` times; the last run's row with the median of the runs' times.
 Row median_of_runs(int repeats, const std::function<Row()> &run) {
     std::vector<double> times;
@@ -522,6 +543,9 @@ int main(int argc, char **argv) {
 
     std::vector<Row> rows;
     if (!options.skip_pcl) {
+        char settings[96];
+        std::snprintf(settings, sizeof settings, "maxdist=%g maxiter=%d eps=1e-8", max_distance, options.iterations);
+        const std::string pcl_settings = settings;
         rows.push_back(median_of_runs(options.repeats, [&] {
             CountingIcp<pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ, double>> icp;
             configure_pcl(icp, max_distance, options.iterations);
@@ -530,22 +554,9 @@ int main(int argc, char **argv) {
             icp.setInputTarget(pair.target);
             CloudXYZ aligned;
             icp.align(aligned);
-            Row row;
-            row.milliseconds = milliseconds_since(start);
-            row.method = "PCL ICP (point-to-point)";
-            row.transform = icp.getFinalTransformation();
-            row.iterations = icp.iterations();
-            row.stop = pcl_stop(icp);
-            if (!options.csv) {
-                row.own_rmse = std::sqrt(icp.getFitnessScore(max_distance));
-            }
-            row.library = "pcl";
-            row.csv_method = "point-to-point";
-            row.threads = 1;
-            row.converged = icp.hasConverged();
-            char note[128];
-            std::snprintf(note, sizeof note, "maxdist=%g maxiter=%d eps=1e-8", max_distance, options.iterations);
-            row.note = note + (" stop=" + pcl_state(icp)) + repeats_note;
+            Row row = pcl_row(icp, start, "PCL ICP (point-to-point)", "point-to-point", max_distance, !options.csv,
+                              pcl_settings);
+            row.note += repeats_note;
             return row;
         }));
         rows.push_back(median_of_runs(options.repeats, [&] {
@@ -556,23 +567,9 @@ int main(int argc, char **argv) {
             icp.setInputTarget(with_normals(pair.target));
             CloudNormal aligned;
             icp.align(aligned);
-            Row row;
-            row.milliseconds = milliseconds_since(start);
-            row.method = "PCL ICP with normals (plane)";
-            row.transform = icp.getFinalTransformation();
-            row.iterations = icp.iterations();
-            row.stop = pcl_stop(icp);
-            if (!options.csv) {
-                row.own_rmse = std::sqrt(icp.getFitnessScore(max_distance));
-            }
-            row.library = "pcl";
-            row.csv_method = "point-to-plane";
-            row.threads = 1; // pcl::NormalEstimation (not the OpenMP variant) and ICP: one thread
-            row.converged = icp.hasConverged();
-            char note[128];
-            std::snprintf(note, sizeof note, "maxdist=%g maxiter=%d eps=1e-8 k=%d", max_distance,
-                          options.iterations, kNormalNeighbours);
-            row.note = note + (" stop=" + pcl_state(icp)) + repeats_note;
+            Row row = pcl_row(icp, start, "PCL ICP with normals (plane)", "point-to-plane", max_distance,
+                              !options.csv, pcl_settings + " k=" + std::to_string(kNormalNeighbours));
+            row.note += repeats_note;
             return row;
         }));
     }

@@ -91,8 +91,8 @@ pub fn check_rigid(matrix: &Matrix4<f64>, name: &str) -> Result<(), String> {
             matrix[(index / 4, index % 4)]
         ));
     }
-    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
     if !homogeneous_last_row(matrix) {
+        let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
         return Err(format!(
             "{name}: last row is {last_row:?}; a homogeneous transform ends in 0 0 0 1 (row-major)"
         ));

@@ -471,6 +471,16 @@ mod tests {
         assert!(normals[..1000].iter().all(|n| (dot(n, n) - 1.0).abs() < 1e-12));
     }
 
+    /// Median over the first 2000 normals of the angle to ±`truth` (degrees).
+    fn median_angle_error(normals: &[Point], truth: &Point) -> f64 {
+        let mut errors: Vec<f64> = normals[..2000]
+            .iter()
+            .map(|n| angle_degrees(n, truth).min(angle_degrees(n, &truth.map(|c| -c))))
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        errors[errors.len() / 2]
+    }
+
     /// 200 000 points on a 4 × 4 plane with σ = 1 cm: the 10 nearest points lie within ~1.6 cm,
     /// so plain k-NN normals are noise; the data-chosen scale thins the cloud until they are
     /// planes. A clean plane keeps plain k-NN (factor 1, identical normals).
@@ -481,13 +491,8 @@ mod tests {
         let centre = [0.0, 0.0, -2.0];
         let workers = Workers::new(2).unwrap();
         let median_error = |points: &[Point], normals: &[Point]| {
-            let mut e: Vec<f64> = normals[..2000]
-                .iter()
-                .map(|n| angle_degrees(n, &normal).min(angle_degrees(n, &normal.map(|c| -c))))
-                .collect();
-            e.sort_by(f64::total_cmp);
             assert_eq!(points.len(), normals.len());
-            e[e.len() / 2]
+            median_angle_error(normals, &normal)
         };
         let noisy = noisy_plane(&mut rng, &normal, &centre, 200_000, 0.01);
         let index = NearestNeighbours::new(&noisy).unwrap();
@@ -522,13 +527,9 @@ mod tests {
             "plain ratio {plain_ratio}"
         );
         let (scaled, factor) = estimate_normals_at_data_scale(&noisy, &index, 10, &workers);
-        let mut errors: Vec<f64> = scaled[..2000]
-            .iter()
-            .map(|n| angle_degrees(n, &normal).min(angle_degrees(n, &normal.map(|c| -c))))
-            .collect();
-        errors.sort_by(f64::total_cmp);
+        let median_error = median_angle_error(&scaled, &normal);
         assert!(factor >= 64, "factor {factor}");
-        assert!(errors[1000] < 10.0, "median error {}°", errors[1000]);
+        assert!(median_error < 10.0, "median error {median_error}°");
     }
 
     #[test]

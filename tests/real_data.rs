@@ -2,10 +2,10 @@
 #![cfg(feature = "io")]
 mod common;
 
-use common::{data_dir, pose_error};
+use common::{data_dir, icp, pose_error};
 use nalgebra::Matrix4;
 use sie::io::{read_cloud, read_transform};
-use sie::{CostFunction, Hooks, Metric, RegistrationConfig, StopReason, register_clouds};
+use sie::{CostFunction, Metric, RegistrationConfig, StopReason};
 
 /// bun000 → bun045 from the Stanford bun.conf poses (the README's preferred ground truth;
 /// PCL's bun0_to_bun4 matrix is a y-only simplification 0.78° away).
@@ -25,7 +25,7 @@ fn bunny_bun0_to_bun4_point_to_plane_from_identity() {
     let target = read_cloud(&dir.join("pcl-test-bunny/bun4.pcd")).unwrap().points;
     let config = RegistrationConfig::default();
     assert_eq!(config.metric, Metric::PointToPlane);
-    let sie = register_clouds(&source, &target, None, None, &config, Hooks::default()).unwrap();
+    let sie = icp(&source, &target, &config);
     let (rot, trans) = pose_error(&sie.transform, &bunny_truth());
     println!(
         "SIE point-to-plane: {rot:.3} deg, {:.2} mm, {:?}, {} iterations",
@@ -42,7 +42,7 @@ fn bunny_bun0_to_bun4_point_to_plane_from_identity() {
         metric: Metric::PointToPoint,
         ..RegistrationConfig::default()
     };
-    let baseline = register_clouds(&source, &target, None, None, &l2, Hooks::default()).unwrap();
+    let baseline = icp(&source, &target, &l2);
     let (rot_l2, _) = pose_error(&baseline.transform, &bunny_truth());
     println!("L2 point-to-point: {rot_l2:.3} deg");
     assert!(
@@ -58,15 +58,7 @@ fn lidar_pair_point_to_plane_from_identity() {
     let source = read_cloud(&folder.join("source.ply")).unwrap().points;
     let target = read_cloud(&folder.join("target.ply")).unwrap().points;
     let truth = read_transform(&folder.join("T_target_source.txt")).unwrap();
-    let result = register_clouds(
-        &source,
-        &target,
-        None,
-        None,
-        &RegistrationConfig::default(),
-        Hooks::default(),
-    )
-    .unwrap();
+    let result = icp(&source, &target, &RegistrationConfig::default());
     let (rot, trans) = pose_error(&result.transform, &truth);
     println!(
         "SIE point-to-plane: {rot:.3} deg, {:.1} mm, {:?}, {} iterations, sigma {:.4} m, inliers {:.2}",

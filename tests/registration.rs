@@ -1,5 +1,8 @@
 //! Registration through the Rust API: noise normalisation, callbacks, baselines, result
 //! contents, stop reasons and input errors.
+mod common;
+
+use common::icp;
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
@@ -350,15 +353,7 @@ fn icp_on_a_room_scene_point_to_plane_and_point_to_point() {
             metric,
             ..RegistrationConfig::default()
         };
-        let result = register_clouds(
-            &scene.source,
-            &scene.target,
-            None,
-            None,
-            &config,
-            Hooks::default(),
-        )
-        .unwrap();
+        let result = icp(&scene.source, &scene.target, &config);
         let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
         assert!(
             rot.to_degrees() < 0.2 && trans < 0.01,
@@ -389,15 +384,7 @@ fn room_scenes_converge_at_benchmark_sizes() {
             cloud.iter().map(|p| p.map(|c| f64::from(c as f32))).collect()
         };
         let (source, target) = (as_f32(&scene.source), as_f32(&scene.target));
-        let result = register_clouds(
-            &source,
-            &target,
-            None,
-            None,
-            &RegistrationConfig::default(),
-            Hooks::default(),
-        )
-        .unwrap();
+        let result = icp(&source, &target, &RegistrationConfig::default());
         let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
         assert_eq!(result.stop_reason, StopReason::Converged, "{points} points");
         assert!(
@@ -422,15 +409,7 @@ fn icp_results_do_not_depend_on_the_thread_count_and_sampling_still_converges() 
             max_correspondences,
             ..RegistrationConfig::default()
         };
-        register_clouds(
-            &scene.source,
-            &scene.target,
-            None,
-            None,
-            &config,
-            Hooks::default(),
-        )
-        .unwrap()
+        icp(&scene.source, &scene.target, &config)
     };
     let one = run(1, 0);
     let two = run(2, 0);
@@ -559,15 +538,7 @@ fn a_cloud_registered_onto_itself_converges_at_the_identity() {
             metric,
             ..RegistrationConfig::default()
         };
-        let r = register_clouds(
-            &scene.target,
-            &scene.target,
-            None,
-            None,
-            &config,
-            Hooks::default(),
-        )
-        .unwrap();
+        let r = icp(&scene.target, &scene.target, &config);
         assert_eq!(r.stop_reason, StopReason::Converged, "{metric:?}");
         assert!(r.iterations <= 3, "{metric:?}: {} iterations", r.iterations);
         assert!(

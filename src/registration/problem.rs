@@ -263,6 +263,8 @@ pub struct CloudProblem<'a> {
     workers: Workers,
     /// Transforms at which queries were made (see `Match`).
     history: Vec<Matrix4<f64>>,
+    /// Per `history` entry, this iteration's transform minus that one (reused buffer).
+    moves: Vec<Matrix4<f64>>,
     /// Median d₂ − d₁ of the first pass (∞ before it): a point whose last update moved it by
     /// at least half of this will most likely fail the skip test again next time.
     typical_margin: f64,
@@ -287,19 +289,14 @@ impl<'a> CloudProblem<'a> {
         config: &RegistrationConfig,
         workers: Workers,
     ) -> Result<Self, String> {
-        if source.len() >= NO_MATCH as usize {
-            return Err(format!(
-                "source has {} points; at most {} are supported",
-                source.len(),
-                NO_MATCH - 1
-            ));
-        }
-        if target.len() > u32::MAX as usize {
-            return Err(format!(
-                "target has {} points; at most {} are supported",
-                target.len(),
-                u32::MAX
-            ));
+        // Indices are u32 with u32::MAX (NO_MATCH) reserved.
+        for (what, count) in [("source", source.len()), ("target", target.len())] {
+            if count >= NO_MATCH as usize {
+                return Err(format!(
+                    "{what} has {count} points; at most {} are supported",
+                    NO_MATCH - 1
+                ));
+            }
         }
         let started = Instant::now();
         let mut target_order: Vec<u32> = (0..target.len() as u32).collect();
@@ -357,6 +354,7 @@ impl<'a> CloudProblem<'a> {
             target_sigma,
             workers,
             history: Vec::new(),
+            moves: Vec::new(),
             typical_margin: f64::INFINITY,
             rows: Rows::default(),
             row_sources: Vec::new(),
@@ -390,10 +388,13 @@ impl<'a> CloudProblem<'a> {
         }
         let generation = self.history.len() as u32;
         // How far each earlier query transform is from this one, applied to a point.
-        let moves: Vec<Matrix4<f64>> = self.history.iter().map(|old| transform - old).collect();
+        let mut moves = std::mem::take(&mut self.moves);
+        moves.clear();
+        moves.extend(self.history.iter().map(|old| transform - old));
         self.history.push(*transform);
         let mut pass = std::mem::take(self.pass_mut(which));
         self.match_pass(transform, &mut pass, &moves, generation);
+        self.moves = moves;
         if self.typical_margin == f64::INFINITY {
             let mut margins: Vec<f32> = pass.matches.iter().map(|m| m.margin).collect();
             if !margins.is_empty() {

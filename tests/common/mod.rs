@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Matrix4;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
+use sie::{Hooks, Point, RegistrationConfig, RegistrationResult, register_clouds};
 
 /// The real-scan folder: `$SIE_DATA_DIR`, by default `<crate>/../shared/data`. Returns `None`
 /// (the caller skips) only outside CI; under CI (env `CI` set) a missing folder is a failure,
@@ -34,4 +35,10 @@ pub fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
         rotation_angle(&rotation_part(&difference)).to_degrees(),
         translation_part(&difference).norm(),
     )
+}
+
+/// ICP of `source` onto `target` from the identity, normals estimated, no hooks; panics on an
+/// error (the tests using it pass valid input).
+pub fn icp(source: &[Point], target: &[Point], config: &RegistrationConfig) -> RegistrationResult {
+    register_clouds(source, target, None, None, config, Hooks::default()).expect("registration")
 }
