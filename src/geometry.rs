@@ -3,7 +3,8 @@
 //! point-to-plane.
 use nalgebra::{Matrix3, Matrix4, Matrix6, Rotation3, SymmetricEigen, Vector3, Vector6};
 
-use crate::registration::Point;
+/// A 3-D point (or vector), in the caller's units.
+pub type Point = [f64; 3];
 
 /// How far RᵀR of a given rigid transform may be from I.
 const ROTATION_TOLERANCE: f64 = 1e-6;
@@ -21,6 +22,36 @@ pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
         t[(1, 0)] * p[0] + t[(1, 1)] * p[1] + t[(1, 2)] * p[2] + t[(1, 3)],
         t[(2, 0)] * p[0] + t[(2, 1)] * p[1] + t[(2, 2)] * p[2] + t[(2, 3)],
     ]
+}
+
+/// Euclidean length of a vector.
+#[inline]
+pub fn length(v: &Point) -> f64 {
+    dot(v, v).sqrt()
+}
+
+#[inline]
+pub fn dot(a: &Point, b: &Point) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+pub fn cross(a: &Point, b: &Point) -> Point {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// SplitMix64: a well-mixed 64-bit hash of `x` (deterministic thinning and subsets keyed on
+/// point indices).
+#[inline]
+pub(crate) fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
 }
 
 #[inline]

@@ -14,7 +14,7 @@ use pcd_rs::{DynReader, DynRecord, Field};
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use crate::registration::Point;
+use crate::geometry::Point;
 
 /// A cloud read from a file.
 #[derive(Clone, Debug, PartialEq)]

@@ -20,6 +20,7 @@
 //! # Ok::<(), sie::Error>(())
 //! ```
 pub mod cost;
+pub mod error;
 pub mod ffi;
 pub mod geometry;
 #[cfg(feature = "io")]
@@ -36,6 +37,7 @@ pub use cost::CostFunction;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use registration::{
     Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
-    StageTimes, StopReason, TraceEntry, estimate_inliers, register_clouds, register_correspondences,
+    SearchReport, StageTimes, StartKind, Starts, StopReason, TraceEntry, estimate_inliers, register_clouds,
+    register_correspondences,
 };
 pub use sie::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieEstimator, SieOptions};

@@ -20,7 +20,7 @@ use kiddo::stem_strategies::Eytzinger;
 const BUCKET: usize = 32;
 type Tree = KdTree<f64, u32, Eytzinger, FlatVec<f64, u32, 3, BUCKET>, 3, BUCKET>;
 
-use crate::registration::Point;
+use crate::geometry::Point;
 
 /// k-d tree over a cloud; query results are indices into the slice it was built from.
 pub struct NearestNeighbours {

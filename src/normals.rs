@@ -2,7 +2,7 @@
 //! comes without normals.
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
-use crate::registration::Point;
+use crate::geometry::{Point, cross, dot, splitmix64};
 
 /// A neighbourhood counts as a line (or a single point) when its middle covariance eigenvalue
 /// is below about this fraction of the largest: no plane, hence no normal. Exactly collinear
@@ -154,14 +154,6 @@ fn thin(points: &[Point], ids: Option<&[u32]>, factor: usize) -> Vec<Point> {
         .collect()
 }
 
-/// SplitMix64 finaliser: a cheap, well-mixed hash for deterministic thinning.
-pub(crate) fn splitmix64(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// Median over the probes of λ_min / λ_mid of their k nearest points in `cloud` (∞ when no
 /// probe has a plane-like neighbourhood).
 fn median_thickness(probes: &[Point], cloud: &[Point], index: &NearestNeighbours, k: usize) -> f64 {
@@ -226,18 +218,6 @@ fn normals_from(
         }
     });
     normals
-}
-
-fn dot(a: &Point, b: &Point) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: &Point, b: &Point) -> Point {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// Covariance (divided by n) of the selected points about their mean; centring first keeps

@@ -1,6 +1,8 @@
 //! Deterministic (seeded) test scenes shared by the demo, the tests and the benchmarks.
 //!
 //! * [`paper_simulation`]: the paper's correspondence experiment (§6).
+//! * [`structured_simulation`] and [`random_motion`]: the same beyond the paper's grid: any
+//!   motion, and outliers that follow a second rigid motion.
 //! * [`room_scene`]: two partially overlapping noisy scans of a furnished room, with ground truth.
 use std::f64::consts::TAU;
 
@@ -9,7 +11,7 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-use crate::registration::Point;
+use crate::geometry::Point;
 
 /// Point pairs for correspondence registration: `source[i]` ↔ `target[i]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -61,6 +63,55 @@ pub fn paper_simulation(
         result.source.push(a);
         result.target.push(b);
         result.is_inlier.push(false);
+    }
+    result
+}
+
+/// A rigid motion: rotation by `angle` (radians) about a uniformly random axis through the
+/// origin, then translation by `shift` in a uniformly random direction.
+pub fn random_motion(rng: &mut Xoshiro256PlusPlus, angle: f64, shift: f64) -> Matrix4<f64> {
+    let axis = random_direction(rng);
+    let direction = random_direction(rng);
+    (Translation3::from(direction.into_inner() * shift) * UnitQuaternion::from_axis_angle(&axis, angle))
+        .to_homogeneous()
+}
+
+/// A uniformly distributed unit vector.
+fn random_direction(rng: &mut Xoshiro256PlusPlus) -> Unit<Vector3<f64>> {
+    let normal = gaussian(1.0);
+    loop {
+        let v = Vector3::new(normal.sample(rng), normal.sample(rng), normal.sample(rng));
+        if v.norm() > 1e-6 {
+            return Unit::new_normalize(v);
+        }
+    }
+}
+
+/// The paper's simulation with a second structure among the outliers: of the `outliers`
+/// pairs, the first `structured` follow their own rigid motion `other` exactly like the inliers
+/// follow `t0` (A uniform in [0,1]³, B = A + N(0, σ²), source = other·A); the rest are the
+/// paper's random outliers. Only the `inliers` pairs (first) are marked as inliers: a
+/// registration should find them, the larger set, and not the structured outliers.
+///
+/// # Panics
+/// If `structured > outliers`, or `noise_sigma` is negative or not finite.
+pub fn structured_simulation(
+    inliers: usize,
+    outliers: usize,
+    structured: usize,
+    noise_sigma: f64,
+    t0: &Matrix4<f64>,
+    other: &Matrix4<f64>,
+    seed: u64,
+) -> Correspondences {
+    assert!(structured <= outliers, "{structured} structured outliers of {outliers}");
+    let mut result = paper_simulation(inliers, outliers, noise_sigma, t0, seed);
+    let noise = gaussian(noise_sigma);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0x5747_5543_5455_5245);
+    for k in inliers..inliers + structured {
+        let a: Point = [0; 3].map(|_| rng.random::<f64>());
+        result.target[k] = a.map(|c| c + noise.sample(&mut rng));
+        result.source[k] = crate::geometry::transform_point(other, &a);
     }
     result
 }

@@ -6,7 +6,7 @@ use std::ffi::CStr;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::{sie_context, sie_status};
-use crate::registration::Error;
+use crate::error::Error;
 
 /// Why a call failed: the status returned to C and the message stored in `last_error`.
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, read_array, write_output};
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
-use crate::registration::estimate_inliers;
+use crate::sie::estimate::estimate_inliers;
 
 fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError> {
     match values.iter().position(|v| !v.is_finite()) {

@@ -7,7 +7,7 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::sie_status;
-use crate::registration::Point;
+use crate::geometry::Point;
 
 /// The scalar types point arrays come in.
 pub(crate) trait Coordinate: Copy {

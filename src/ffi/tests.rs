@@ -99,6 +99,7 @@ fn sample_result() -> RegistrationResult {
         correspondences: vec![4, -1, 2],
         histograms: vec![histogram()],
         times: Default::default(),
+        search: Default::default(),
         trace: vec![TraceEntry {
             iteration: 1,
             annealing: true,

@@ -1,355 +1,37 @@
-//! The IRLS driver: β annealing (§4.3), adaptive k (§4.5), convergence and stop reasons,
-//! shared by correspondence registration and ICP.
+//! The IRLS loop (eq. regprob2) shared by correspondence registration and ICP: match, weigh
+//! (SIE's schedule of §4.3/§4.5, or a baseline cost), solve, stop.
 use std::time::Instant;
 
 use nalgebra::Matrix4;
 
-use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
+use super::problem::{Problem, Rows};
 use super::{
-    Error, Hooks, InlierEstimate, Metric, Observer, Point, RegistrationConfig, RegistrationResult,
-    StageTimes, StopReason, TraceEntry,
+    Error, Observer, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
-use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
-use crate::parallel::Workers;
-use crate::sie::{SieEstimator, SieOptions};
-
-/// A β level has converged when one update moves the correspondences by less than this
-/// fraction of the current model width σ+β (normalised RMS displacement).
-const LEVEL_TOLERANCE: f64 = 0.01;
-/// At most this many updates per β level before β shrinks anyway: with many outliers a level
-/// can wander at the scale of σ+β without settling (the authors' driver likewise makes at most
-/// 3 model updates per level).
-const MAX_LEVEL_ITERATIONS: u32 = 5;
-/// Largest residual magnitude `estimate_inliers` accepts (see there).
-const MAX_RESIDUAL: f64 = 1e140;
-/// δ of eq. (regprob3GGD) relative to σ+β: bounds the weight max(‖r‖, δ)^(p-2) for p < 2.
-const SHAPE_DELTA: f64 = 1e-3;
-
-/// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
-pub fn register_correspondences(
-    source: &[Point],
-    target: &[Point],
-    init: Option<&Matrix4<f64>>,
-    config: &RegistrationConfig,
-    hooks: Hooks<'_>,
-) -> Result<RegistrationResult, Error> {
-    let started = Instant::now();
-    config.validate()?;
-    if source.len() != target.len() {
-        return Err(Error::InvalidArgument(format!(
-            "source has {} points but target has {}; correspondences must pair them one to one",
-            source.len(),
-            target.len()
-        )));
-    }
-    if config.skip_non_finite {
-        let kept: Vec<u32> = (0..source.len() as u32)
-            .filter(|&i| is_finite(&source[i as usize]) && is_finite(&target[i as usize]))
-            .collect();
-        if kept.len() < source.len() {
-            let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
-            let (source_kept, target_kept) = (pick(source), pick(target));
-            let finite = RegistrationConfig {
-                skip_non_finite: false,
-                ..config.clone()
-            };
-            let result = register_correspondences(&source_kept, &target_kept, init, &finite, hooks)?;
-            return Ok(expand(result, &kept, source.len(), Some(&kept)));
-        }
-    }
-    require_points("correspondences", source.len(), 3)?;
-    require_finite("source", source)?;
-    require_finite("target", target)?;
-    let init = checked_initial_guess(init)?;
-    let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
-    let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
-    let mut result = run(&mut problem, init, config, hooks.observer)?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
-}
-
-fn is_finite(p: &Point) -> bool {
-    p.iter().all(|v| v.is_finite())
-}
-
-/// Indices of the finite points, or `None` when every point is finite (nothing to copy).
-fn finite_indices(points: &[Point]) -> Option<Vec<u32>> {
-    if points.iter().all(is_finite) {
-        return None;
-    }
-    Some(
-        (0..points.len() as u32)
-            .filter(|&i| is_finite(&points[i as usize]))
-            .collect(),
-    )
-}
-
-/// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
-fn register_finite_clouds(
-    source: &[Point],
-    target: &[Point],
-    target_normals: Option<&[Point]>,
-    init: Option<&Matrix4<f64>>,
-    config: &RegistrationConfig,
-    hooks: Hooks<'_>,
-) -> Result<RegistrationResult, Error> {
-    let finite = RegistrationConfig {
-        skip_non_finite: false,
-        ..config.clone()
-    };
-    let source_kept = finite_indices(source);
-    let target_kept = finite_indices(target);
-    let pick = |points: &[Point], kept: &Option<Vec<u32>>| -> Vec<Point> {
-        match kept {
-            Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
-            None => points.to_vec(),
-        }
-    };
-    let normals: Option<Vec<Point>> = target_normals.map(|normals| {
-        pick(normals, &target_kept)
-            .into_iter()
-            .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
-            .collect()
-    });
-    let source_points = pick(source, &source_kept);
-    let target_points = pick(target, &target_kept);
-    let result = register_clouds(
-        &source_points,
-        &target_points,
-        normals.as_deref(),
-        init,
-        &finite,
-        hooks,
-    )?;
-    let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
-    Ok(expand(result, &source_map, source.len(), target_kept.as_deref()))
-}
-
-/// Maps per-point results of a registration on kept points back to the caller's indexing:
-/// `source_kept[i]` is the original index of kept source point i, `target_kept` likewise for
-/// target indices (`None`: target indices are unchanged).
-fn expand(
-    mut result: RegistrationResult,
-    source_kept: &[u32],
-    source_count: usize,
-    target_kept: Option<&[u32]>,
-) -> RegistrationResult {
-    let mut probabilities = vec![0.0; source_count];
-    let mut correspondences = vec![-1i64; source_count];
-    for (k, &original) in source_kept.iter().enumerate() {
-        probabilities[original as usize] = result.probabilities[k];
-        let target = result.correspondences[k];
-        correspondences[original as usize] = match target_kept {
-            Some(map) if target >= 0 => map[target as usize] as i64,
-            _ => target,
-        };
-    }
-    result.inlier_fraction *= source_kept.len() as f64 / source_count.max(1) as f64;
-    result.probabilities = probabilities;
-    result.correspondences = correspondences;
-    result
-}
-
-/// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
-/// `target_normals` (one per target point; zero vectors mark points without a normal) are used
-/// for point-to-plane; without them normals come from k-NN PCA on the target.
-pub fn register_clouds(
-    source: &[Point],
-    target: &[Point],
-    target_normals: Option<&[Point]>,
-    init: Option<&Matrix4<f64>>,
-    config: &RegistrationConfig,
-    hooks: Hooks<'_>,
-) -> Result<RegistrationResult, Error> {
-    let started = Instant::now();
-    config.validate()?;
-    if let Some(normals) = target_normals {
-        if normals.len() != target.len() {
-            return Err(Error::InvalidArgument(format!(
-                "target has {} points but {} normals",
-                target.len(),
-                normals.len()
-            )));
-        }
-    }
-    if config.skip_non_finite {
-        return register_finite_clouds(source, target, target_normals, init, config, hooks);
-    }
-    require_points("source", source.len(), 3)?;
-    require_points("target", target.len(), 3)?;
-    require_finite("source", source)?;
-    require_finite("target", target)?;
-    if let Some(normals) = target_normals {
-        require_finite("target normals", normals)?;
-        if config.metric == Metric::PointToPlane && normals.iter().all(|n| *n == [0.0; 3]) {
-            return Err(Error::InvalidArgument(
-                "every target normal is 0 0 0; point-to-plane needs normals (or pass none to estimate them)"
-                    .into(),
-            ));
-        }
-    }
-    let init = checked_initial_guess(init)?;
-    let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
-    let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
-    let mut problem = CloudProblem::new(
-        source,
-        target,
-        target_normals,
-        source_sigma,
-        target_sigma,
-        config,
-        workers,
-    )
-    .map_err(Error::InvalidArgument)?;
-    let mut result = run(&mut problem, init, config, hooks.observer)?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
-}
-
-/// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
-/// given; β is the regulariser (0 for none). Fits with k = k₀, then adapts k from P(I|H) and
-/// refits (§4.5), and returns P(I|R_i) per row. Scaled residuals above 1e140 in magnitude are
-/// refused (their squares would overflow in the fit).
-pub fn estimate_inliers(
-    residuals: &[f64],
-    cols: usize,
-    row_scales: Option<&[f64]>,
-    beta: f64,
-    options: &SieOptions,
-) -> Result<InlierEstimate, Error> {
-    options.validate().map_err(Error::InvalidArgument)?;
-    if cols == 0 {
-        return Err(Error::InvalidArgument("cols must be >= 1".into()));
-    }
-    if residuals.len() % cols != 0 {
-        return Err(Error::InvalidArgument(format!(
-            "{} residual values do not form rows of {cols}",
-            residuals.len()
-        )));
-    }
-    let rows = residuals.len() / cols;
-    require_points("residual rows", rows, 1)?;
-    if let Some(i) = residuals.iter().position(|v| !v.is_finite()) {
-        return Err(Error::NonFinite(format!("residuals[{i}] is {}", residuals[i])));
-    }
-    if !(beta.is_finite() && beta >= 0.0) {
-        return Err(Error::InvalidArgument(format!(
-            "beta must be finite and >= 0, got {beta}"
-        )));
-    }
-    let normalised: Vec<f64> = match row_scales {
-        None => residuals.to_vec(),
-        Some(scales) => {
-            if scales.len() != rows {
-                return Err(Error::InvalidArgument(format!(
-                    "{} row scales for {rows} rows",
-                    scales.len()
-                )));
-            }
-            if let Some(i) = scales.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-                return Err(Error::InvalidArgument(format!(
-                    "row_scales[{i}] is {}; scales must be finite and > 0",
-                    scales[i]
-                )));
-            }
-            residuals
-                .chunks_exact(cols)
-                .zip(scales)
-                .flat_map(|(row, s)| row.iter().map(move |r| r / s))
-                .collect()
-        }
-    };
-    // Squares of the residuals are summed (RMS start, histogram moments): beyond this they
-    // overflow and the fit would end with an infinite σ.
-    if let Some(i) = normalised.iter().position(|v| v.abs() > MAX_RESIDUAL) {
-        return Err(Error::InvalidArgument(format!(
-            "residual {i} is {:e} after row scaling; magnitudes above {MAX_RESIDUAL:e} cannot be squared \
-             and summed without overflow (rescale the residuals)",
-            normalised[i]
-        )));
-    }
-    let mut sie = SieEstimator::new(options.clone());
-    sie.prepare(&normalised, cols);
-    sie.set_beta(&[beta]);
-    sie.fit(&normalised, cols);
-    sie.adapt_penalty();
-    sie.fit(&normalised, cols);
-    let mut probabilities = vec![0.0; rows];
-    let prior = sie.probabilities(&normalised, cols, &mut probabilities);
-    Ok(InlierEstimate {
-        probabilities,
-        models: sie.models().to_vec(),
-        prior,
-    })
-}
-
-fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error> {
-    if count < minimum {
-        return Err(Error::TooFewPoints(format!(
-            "{what}: {count} given, at least {minimum} needed"
-        )));
-    }
-    Ok(())
-}
-
-fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
-    match points.iter().position(|p| !is_finite(p)) {
-        None => Ok(()),
-        Some(i) => Err(Error::NonFinite(format!(
-            "{what}[{i}] = {:?} is not finite",
-            points[i]
-        ))),
-    }
-}
-
-/// The initial guess must be a rigid transform (`geometry::check_rigid`); it is then projected
-/// exactly onto SO(3).
-pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>, Error> {
-    let Some(t) = init else {
-        return Ok(Matrix4::identity());
-    };
-    crate::geometry::check_rigid(t, "initial guess").map_err(Error::InvalidArgument)?;
-    Ok(crate::geometry::orthonormalised(t))
-}
-
-/// Per-point σ of both clouds (§4.4), or `None` when noise is constant.
-type Sigmas = (Option<Vec<f64>>, Option<Vec<f64>>);
-
-fn noise_sigmas(
-    config: &RegistrationConfig,
-    callback: Option<&mut dyn NoiseScales>,
-    source: &[Point],
-    target: &[Point],
-) -> Result<Sigmas, Error> {
-    let mut builtin = config.noise;
-    let scales: &mut dyn NoiseScales = match callback {
-        Some(cb) => cb,
-        None if config.noise == NoiseModel::Constant => return Ok((None, None)),
-        None => &mut builtin,
-    };
-    let s = cloud_sigmas(scales, CloudRole::Source, source).map_err(Error::Callback)?;
-    let t = cloud_sigmas(scales, CloudRole::Target, target).map_err(Error::Callback)?;
-    Ok((Some(s), Some(t)))
-}
+use crate::sie::schedule::{BetaSchedule, Convergence, Schedule, row_norm};
 
 /// How correspondences are weighted.
 enum Weighting {
-    /// `frozen`: the final round has settled at the model's scale and stops refitting, so IRLS
-    /// can converge on a fixed model instead of chasing histogram bin-count jitter.
-    Sie {
-        estimator: SieEstimator,
-        annealing: bool,
-        frozen: bool,
-    },
-    Baseline {
-        cost: CostFunction,
-        scale: f64,
-    },
+    Sie(Box<Schedule>),
+    Baseline { cost: CostFunction, scale: f64 },
+}
+
+/// The fitted noise model as the result reports it.
+struct ModelSummary {
+    /// σ_j per histogram (the baseline's scale for other costs).
+    sigma: Vec<f64>,
+    /// β_j per histogram (empty for baselines).
+    beta: Vec<f64>,
+    /// k of the first histogram (0 for baselines).
+    penalty: f64,
+    /// Mean shape exponent p.
+    noise_shape: f64,
 }
 
 /// Residuals divided by F, and the IRLS weights (eq. regprob2).
+#[derive(Default)]
 struct Workspace {
     normalised: Vec<f64>,
     weights: Vec<f64>,
@@ -359,66 +41,35 @@ struct Workspace {
 impl Weighting {
     fn new(config: &RegistrationConfig) -> Self {
         match config.cost {
-            CostFunction::Sie => Weighting::Sie {
-                estimator: SieEstimator::new(config.sie.clone()),
-                annealing: true,
-                frozen: false,
-            },
+            CostFunction::Sie => Weighting::Sie(Box::new(Schedule::new(
+                config.sie.clone(),
+                BetaSchedule {
+                    initial: config.initial_beta,
+                    shrink: config.beta_shrink,
+                    stop_ratio: config.beta_stop_ratio,
+                },
+            ))),
             cost => Weighting::Baseline { cost, scale: 0.0 },
         }
     }
 
+    fn annealing(&self) -> bool {
+        matches!(self, Weighting::Sie(schedule) if schedule.annealing())
+    }
+
     /// Fits the cost to this iteration's residuals and fills `work.weights`.
-    fn update(
-        &mut self,
-        rows: &Rows,
-        cols: usize,
-        config: &RegistrationConfig,
-        first: bool,
-        work: &mut Workspace,
-    ) {
+    fn update(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
         let n = rows.len();
         work.weights.resize(n, 0.0);
         work.probabilities.resize(n, 0.0);
         match self {
-            Weighting::Sie {
-                estimator,
-                annealing,
-                frozen,
-            } => {
-                if first {
-                    estimator.prepare(&work.normalised, cols);
-                    let beta = match config.initial_beta {
-                        Some(b) => vec![b],
-                        None => estimator.residual_rms(&work.normalised, cols),
-                    };
-                    estimator.set_beta(&beta);
-                }
-                if !*frozen {
-                    if !*annealing {
-                        // §4.5: after convergence, k = P(I|H)^-3 from the data at hand.
-                        estimator.adapt_penalty();
-                    }
-                    estimator.fit(&work.normalised, cols);
-                }
-                estimator.probabilities(&work.normalised, cols, &mut work.probabilities);
-                let p = estimator.mean_shape();
-                let width = estimator
-                    .effective_scales()
-                    .into_iter()
-                    .fold(f64::INFINITY, f64::min);
-                let delta = (SHAPE_DELTA * width).max(1e-12);
-                for i in 0..n {
-                    // eq. (regprob3) / (regprob3GGD): w = σ^-p·max(‖r‖,δ)^(p-2)·P(I|r); σ^-p is common
-                    // to all rows and dropped, F(i)^-2 carries the per-row noise (§4.4).
-                    let shape_factor = if p == 2.0 {
-                        1.0
-                    } else {
-                        row_norm(&work.normalised, cols, i).max(delta).powf(p - 2.0)
-                    };
-                    work.weights[i] = work.probabilities[i] * shape_factor / rows.scale[i].powi(2);
-                }
-            }
+            Weighting::Sie(schedule) => schedule.weigh(
+                &work.normalised,
+                cols,
+                &rows.scale,
+                &mut work.probabilities,
+                &mut work.weights,
+            ),
             Weighting::Baseline { cost, scale } => {
                 *scale = baseline_weights(*cost, &work.normalised, cols, &mut work.weights);
                 for (w, f) in work.weights.iter_mut().zip(&rows.scale) {
@@ -428,13 +79,21 @@ impl Weighting {
         }
     }
 
+    /// Which convergence tests apply after this update (SIE: only once β ≪ σ).
+    fn after_update(&mut self, below_tolerance: bool, displacement: f64) -> Convergence {
+        match self {
+            Weighting::Sie(schedule) => schedule.after_update(below_tolerance, displacement),
+            Weighting::Baseline { .. } => Convergence::ToleranceOrCycle,
+        }
+    }
+
     /// Per-row probabilities at the final transform: P(I|r) for SIE, weight / max weight otherwise.
     fn final_probabilities(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
         let n = rows.len();
         work.probabilities.resize(n, 0.0);
         match self {
-            Weighting::Sie { estimator, .. } => {
-                estimator.probabilities(&work.normalised, cols, &mut work.probabilities);
+            Weighting::Sie(schedule) => {
+                schedule.probabilities(&work.normalised, cols, &mut work.probabilities);
             }
             Weighting::Baseline { cost, .. } => {
                 work.weights.resize(n, 0.0);
@@ -447,25 +106,25 @@ impl Weighting {
         }
     }
 
-    fn sigma_beta_penalty(&self) -> (Vec<f64>, Vec<f64>, f64, f64) {
+    fn summary(&self) -> ModelSummary {
         match self {
-            Weighting::Sie { estimator, .. } => (
-                estimator.models().iter().map(|m| m.shape.sigma).collect(),
-                estimator.models().iter().map(|m| m.beta).collect(),
-                estimator.models().first().map_or(0.0, |m| m.penalty),
-                estimator.mean_shape(),
-            ),
-            Weighting::Baseline { scale, .. } => (vec![*scale], Vec::new(), 0.0, 2.0),
+            Weighting::Sie(schedule) => {
+                let models = schedule.estimator().models();
+                ModelSummary {
+                    sigma: models.iter().map(|m| m.shape.sigma).collect(),
+                    beta: models.iter().map(|m| m.beta).collect(),
+                    penalty: models.first().map_or(0.0, |m| m.penalty),
+                    noise_shape: schedule.estimator().mean_shape(),
+                }
+            }
+            Weighting::Baseline { scale, .. } => ModelSummary {
+                sigma: vec![*scale],
+                beta: Vec::new(),
+                penalty: 0.0,
+                noise_shape: 2.0,
+            },
         }
     }
-}
-
-fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
-    values[row * cols..(row + 1) * cols]
-        .iter()
-        .map(|v| v * v)
-        .sum::<f64>()
-        .sqrt()
 }
 
 fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
@@ -479,10 +138,13 @@ fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
 }
 
 /// The IRLS loop (eq. regprob2) with SIE's β schedule: run to convergence, halve β, repeat
-/// until β ≪ σ, then a final round with adaptive k (§4.3, §4.5).
-fn run(
+/// until β ≪ σ, then a final round with adaptive k (§4.3, §4.5). At most
+/// `config.max_iterations` updates, numbered from `first_iteration` (the runs from several
+/// starts of one registration are numbered on).
+pub(crate) fn run(
     problem: &mut dyn Problem,
     init: Matrix4<f64>,
+    first_iteration: u32,
     config: &RegistrationConfig,
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
@@ -492,16 +154,11 @@ fn run(
     // The transform before the last update, for the 2-cycle test below.
     let mut previous = init;
     let mut weighting = Weighting::new(config);
-    let mut work = Workspace {
-        normalised: Vec::new(),
-        weights: Vec::new(),
-        probabilities: Vec::new(),
-    };
+    let mut work = Workspace::default();
     let mut stop = StopReason::IterationLimit;
     let mut rank_deficient = false;
-    let mut iterations = 0;
+    let mut iterations = first_iteration.saturating_sub(1);
     let mut trace = Vec::new();
-    let mut level_iterations = 0u32;
     let (index, normals) = problem.setup_seconds();
     let mut times = StageTimes {
         index,
@@ -522,9 +179,9 @@ fn run(
             *stage(times) -= spent;
             times.normals += spent;
         };
-    for iteration in 1..=config.max_iterations {
+    for iteration in first_iteration..first_iteration.saturating_add(config.max_iterations) {
         lap(&mut 0.0);
-        problem.set_annealing(matches!(weighting, Weighting::Sie { annealing: true, .. }));
+        problem.set_annealing(weighting.annealing());
         problem.linearise(&transform);
         lap(&mut times.matching);
         move_normals_time(problem, &mut times, |t| &mut t.matching);
@@ -534,7 +191,7 @@ fn run(
             break;
         }
         normalise(rows, cols, &mut work.normalised);
-        weighting.update(rows, cols, config, iteration == 1, &mut work);
+        weighting.update(rows, cols, &mut work);
         lap(&mut times.weighting);
         let solve = problem.solve(&transform, &work.weights);
         lap(&mut times.solve);
@@ -577,43 +234,15 @@ fn run(
         // differ by more than the tolerance: T_{k+1} = T_{k-1}. Further updates only repeat the
         // pair, so a fixed model that returns within tolerance to where it was two updates ago
         // has converged (either member is as good an answer as the data gives).
-        let two_cycle = iteration > 2
+        let two_cycle = iteration > first_iteration + 1
             && cycle_translation <= config.translation_tolerance
             && cycle_rotation <= config.rotation_tolerance;
-        if let Weighting::Sie {
-            estimator,
-            annealing,
-            frozen,
-        } = &mut weighting
-        {
-            let width = estimator
-                .effective_scales()
-                .into_iter()
-                .fold(f64::INFINITY, f64::min);
-            let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * width;
-            level_iterations += 1;
-            if *annealing {
-                if settled || level_iterations >= MAX_LEVEL_ITERATIONS {
-                    level_iterations = 0;
-                    if estimator.beta_negligible(config.beta_stop_ratio) {
-                        *annealing = false;
-                    } else {
-                        estimator.shrink_beta(config.beta_shrink);
-                    }
-                }
-                continue;
-            }
-            let was_frozen = *frozen;
-            *frozen |= settled;
-            if was_frozen && two_cycle {
-                stop = StopReason::Converged;
-                break;
-            }
-        } else if two_cycle {
-            stop = StopReason::Converged;
-            break;
-        }
-        if below_tolerance {
+        let converged = match weighting.after_update(below_tolerance, displacement) {
+            Convergence::NotYet => false,
+            Convergence::Tolerance => below_tolerance,
+            Convergence::ToleranceOrCycle => below_tolerance || two_cycle,
+        };
+        if converged {
             stop = StopReason::Converged;
             break;
         }
@@ -641,9 +270,14 @@ fn run(
         weight_sum += p;
         weighted_square += p * row_norm(&rows.residual, cols, i).powi(2);
     }
-    let (sigma, beta, penalty, noise_shape) = weighting.sigma_beta_penalty();
+    let ModelSummary {
+        sigma,
+        beta,
+        penalty,
+        noise_shape,
+    } = weighting.summary();
     let histograms = match &weighting {
-        Weighting::Sie { estimator, .. } => estimator.models().to_vec(),
+        Weighting::Sie(schedule) => schedule.estimator().models().to_vec(),
         Weighting::Baseline { .. } => Vec::new(),
     };
     Ok(RegistrationResult {
@@ -666,6 +300,12 @@ fn run(
         histograms,
         trace,
         times,
+        search: SearchReport {
+            start: StartKind::InitialGuess,
+            hypotheses: 0,
+            starts_run: 1,
+            significance: 0.0,
+        },
     })
 }
 
@@ -678,10 +318,10 @@ fn trace_entry(
     rotation_change: f64,
     translation_change: f64,
 ) -> TraceEntry {
-    let (sigma, beta, penalty, _) = weighting.sigma_beta_penalty();
+    let model = weighting.summary();
     let n = rows.len();
     let mean_probability = match weighting {
-        Weighting::Sie { .. } => work.probabilities.iter().sum::<f64>() / n as f64,
+        Weighting::Sie(_) => work.probabilities.iter().sum::<f64>() / n as f64,
         Weighting::Baseline { .. } => {
             let largest = work.weights.iter().cloned().fold(0.0, f64::max);
             if largest > 0.0 {
@@ -697,10 +337,10 @@ fn trace_entry(
         .sum();
     TraceEntry {
         iteration,
-        annealing: matches!(weighting, Weighting::Sie { annealing: true, .. }),
-        sigma: sigma.first().copied().unwrap_or(0.0),
-        beta: beta.first().copied().unwrap_or(0.0),
-        penalty,
+        annealing: weighting.annealing(),
+        sigma: model.sigma.first().copied().unwrap_or(0.0),
+        beta: model.beta.first().copied().unwrap_or(0.0),
+        penalty: model.penalty,
         inlier_fraction: mean_probability,
         rmse: if weight_sum > 0.0 {
             (weighted_square / weight_sum).sqrt()

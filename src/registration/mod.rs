@@ -4,6 +4,8 @@
 //! Transforms are 4×4 homogeneous `T_target_source`: p_target = T · p_source.
 
 mod driver;
+mod input;
+mod pipeline;
 mod problem;
 
 use std::ops::ControlFlow;
@@ -13,9 +15,10 @@ use nalgebra::Matrix4;
 use crate::cost::CostFunction;
 use crate::noise::{NoiseModel, NoiseScales};
 use crate::sie::{HistogramModel, SieOptions};
+pub use crate::sie::estimate::{InlierEstimate, estimate_inliers};
 
-/// A 3-D point.
-pub type Point = [f64; 3];
+pub use crate::error::Error;
+pub use crate::geometry::Point;
 
 /// Residual used by ICP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -41,6 +44,28 @@ pub enum StopReason {
     Cancelled,
 }
 
+/// Where SIE starts from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Starts {
+    /// Correspondences: besides the initial guess, the poses of a threshold-free hypothesis
+    /// search (`sie::hypotheses`); SIE runs from the most significant ones and the result with
+    /// the most significant inlier cluster is returned. ICP: the initial guess.
+    #[default]
+    Automatic,
+    /// Only the initial guess (the paper's method as published).
+    InitialGuess,
+}
+
+/// Which start the returned transform came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StartKind {
+    /// The caller's initial guess (the identity when none was given).
+    #[default]
+    InitialGuess,
+    /// A pose found by the hypothesis search.
+    Hypothesis,
+}
+
 /// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegistrationConfig {
@@ -48,6 +73,8 @@ pub struct RegistrationConfig {
     pub sie: SieOptions,
     /// ICP only; correspondence registration always uses point-to-point.
     pub metric: Metric,
+    /// Where SIE starts (SIE only; baselines start from the initial guess).
+    pub starts: Starts,
     /// Cap on IRLS updates (each is one match + weight + solve step).
     pub max_iterations: u32,
     /// Converged when the update moves the source centroid by less than this (input units) …
@@ -85,6 +112,7 @@ impl Default for RegistrationConfig {
             cost: CostFunction::Sie,
             sie: SieOptions::default(),
             metric: Metric::PointToPlane,
+            starts: Starts::Automatic,
             max_iterations: 200,
             translation_tolerance: 1e-6,
             rotation_tolerance: 1e-6,
@@ -221,43 +249,26 @@ pub struct RegistrationResult {
     /// Per-iteration trace when `record_trace` is set.
     pub trace: Vec<TraceEntry>,
     pub times: StageTimes,
+    /// Which start decided the result, and what the search found.
+    pub search: SearchReport,
 }
 
-/// Why a registration could not run. Nothing is returned with an error.
-#[derive(Clone, Debug, PartialEq)]
-pub enum Error {
-    InvalidArgument(String),
-    /// A NaN or infinite coordinate or value; the message names the array and first index.
-    NonFinite(String),
-    TooFewPoints(String),
-    /// The noise callback failed or returned bad scales.
-    Callback(String),
+/// Where the returned transform came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SearchReport {
+    /// Which start the transform came from.
+    pub start: StartKind,
+    /// Minimal samples drawn by the hypothesis search (0 when none ran).
+    pub hypotheses: u32,
+    /// Starts SIE was run from (1 without a search).
+    pub starts_run: u32,
+    /// Significance of the inlier cluster at the returned transform (`sie::significance`;
+    /// nats, 0 when nothing stands out from chance). 0 when no search ran.
+    pub significance: f64,
 }
 
-impl std::fmt::Display for Error {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Error::InvalidArgument(m) | Error::NonFinite(m) | Error::TooFewPoints(m) | Error::Callback(m) => {
-                f.write_str(m)
-            }
-        }
-    }
-}
 
-impl std::error::Error for Error {}
-
-/// Standalone SIE on a residual matrix.
-#[derive(Clone, Debug, PartialEq)]
-pub struct InlierEstimate {
-    /// P(I|R_i) per row.
-    pub probabilities: Vec<f64>,
-    /// One model per histogram.
-    pub models: Vec<HistogramModel>,
-    /// P(I): mean per-component posterior.
-    pub prior: f64,
-}
-
-pub use driver::{estimate_inliers, register_clouds, register_correspondences};
+pub use pipeline::{register_clouds, register_correspondences};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.
 #[derive(Default)]

@@ -6,8 +6,8 @@ use std::time::Instant;
 use nalgebra::Matrix4;
 use rand::SeedableRng;
 
-use super::{Metric, Point, RegistrationConfig};
-use crate::geometry::{Solve, point_to_plane_step, transform_point, weighted_rigid_fit};
+use super::{Metric, RegistrationConfig};
+use crate::geometry::{Point, Solve, length, point_to_plane_step, splitmix64, transform_point, weighted_rigid_fit};
 use crate::nn::NearestNeighbours;
 use crate::noise::combine;
 use crate::normals::NormalScale;
@@ -331,7 +331,7 @@ impl<'a> CloudProblem<'a> {
             sample
                 .iter()
                 .copied()
-                .filter(|&i| crate::normals::splitmix64(u64::from(i) ^ config.seed) % factor == 0)
+                .filter(|&i| splitmix64(u64::from(i) ^ config.seed) % factor == 0)
                 .collect()
         } else {
             Vec::new()
@@ -525,10 +525,6 @@ impl<'a> CloudProblem<'a> {
             }
         }
     }
-}
-
-fn length(v: &Point) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
 /// Reorders `indices` along a Morton (Z-order) curve over the points' bounding box (21 bits

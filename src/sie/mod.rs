@@ -11,8 +11,12 @@
 //!
 //! Rows combine their per-column probabilities with γ = (P(I)/P(O))^(m-1) (§4.2).
 
+pub mod estimate;
 mod histogram;
+pub mod hypotheses;
+pub mod schedule;
 pub mod shape;
+pub mod significance;
 
 pub use histogram::HistogramModel;
 use shape::GeneralisedGaussian;

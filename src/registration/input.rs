@@ -1,0 +1,100 @@
+//! Input rules shared by the registration entry points: counts, finite values, the initial
+//! guess, per-point noise (§4.4), and dropping non-finite points on request.
+
+use nalgebra::Matrix4;
+
+use super::{RegistrationConfig, RegistrationResult};
+use crate::error::Error;
+use crate::geometry::Point;
+use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
+
+pub(crate) fn is_finite(p: &Point) -> bool {
+    p.iter().all(|v| v.is_finite())
+}
+
+/// Indices of the finite points, or `None` when every point is finite (nothing to copy).
+pub(crate) fn finite_indices(points: &[Point]) -> Option<Vec<u32>> {
+    if points.iter().all(is_finite) {
+        return None;
+    }
+    Some(
+        (0..points.len() as u32)
+            .filter(|&i| is_finite(&points[i as usize]))
+            .collect(),
+    )
+}
+
+/// Maps per-point results of a registration on kept points back to the caller's indexing:
+/// `source_kept[i]` is the original index of kept source point i, `target_kept` likewise for
+/// target indices (`None`: target indices are unchanged).
+pub(crate) fn expand(
+    mut result: RegistrationResult,
+    source_kept: &[u32],
+    source_count: usize,
+    target_kept: Option<&[u32]>,
+) -> RegistrationResult {
+    let mut probabilities = vec![0.0; source_count];
+    let mut correspondences = vec![-1i64; source_count];
+    for (k, &original) in source_kept.iter().enumerate() {
+        probabilities[original as usize] = result.probabilities[k];
+        let target = result.correspondences[k];
+        correspondences[original as usize] = match target_kept {
+            Some(map) if target >= 0 => map[target as usize] as i64,
+            _ => target,
+        };
+    }
+    result.inlier_fraction *= source_kept.len() as f64 / source_count.max(1) as f64;
+    result.probabilities = probabilities;
+    result.correspondences = correspondences;
+    result
+}
+
+pub(crate) fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error> {
+    if count < minimum {
+        return Err(Error::TooFewPoints(format!(
+            "{what}: {count} given, at least {minimum} needed"
+        )));
+    }
+    Ok(())
+}
+
+pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
+    match points.iter().position(|p| !is_finite(p)) {
+        None => Ok(()),
+        Some(i) => Err(Error::NonFinite(format!(
+            "{what}[{i}] = {:?} is not finite",
+            points[i]
+        ))),
+    }
+}
+
+/// The initial guess must be a rigid transform (`geometry::check_rigid`); it is then projected
+/// exactly onto SO(3).
+pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>, Error> {
+    let Some(t) = init else {
+        return Ok(Matrix4::identity());
+    };
+    crate::geometry::check_rigid(t, "initial guess").map_err(Error::InvalidArgument)?;
+    Ok(crate::geometry::orthonormalised(t))
+}
+
+/// Per-point σ of both clouds (§4.4), or `None` when noise is constant.
+pub(crate) type Sigmas = (Option<Vec<f64>>, Option<Vec<f64>>);
+
+pub(crate) fn noise_sigmas(
+    config: &RegistrationConfig,
+    callback: Option<&mut dyn NoiseScales>,
+    source: &[Point],
+    target: &[Point],
+) -> Result<Sigmas, Error> {
+    let mut builtin = config.noise;
+    let scales: &mut dyn NoiseScales = match callback {
+        Some(cb) => cb,
+        None if config.noise == NoiseModel::Constant => return Ok((None, None)),
+        None => &mut builtin,
+    };
+    let s = cloud_sigmas(scales, CloudRole::Source, source).map_err(Error::Callback)?;
+    let t = cloud_sigmas(scales, CloudRole::Target, target).map_err(Error::Callback)?;
+    Ok((Some(s), Some(t)))
+}
+

@@ -1,0 +1,200 @@
+//! SIE inside an IRLS registration (§3, §4.3, §4.5): the β annealing schedule, the moment k
+//! adapts, the final round, and the IRLS weight of eq. (regprob3).
+//!
+//! The registration driver owns the loop (match, weigh, solve, stop); this type decides how
+//! each iteration's correspondences are weighed and when the model may be called converged.
+
+use super::{SieEstimator, SieOptions};
+
+/// A β level has converged when one update moves the correspondences by less than this
+/// fraction of the current model width σ+β (normalised RMS displacement).
+const LEVEL_TOLERANCE: f64 = 0.01;
+/// At most this many updates per β level before β shrinks anyway: with many outliers a level
+/// can wander at the scale of σ+β without settling (the authors' driver likewise makes at most
+/// 3 model updates per level).
+const MAX_LEVEL_UPDATES: u32 = 5;
+/// δ of eq. (regprob3GGD) relative to σ+β: bounds the weight max(‖r‖, δ)^(p-2) for p < 2.
+const SHAPE_DELTA: f64 = 1e-3;
+
+/// How β starts and shrinks (§4.3).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BetaSchedule {
+    /// β₀ in normalised units; `None`: the RMS of the first residuals (§4.3, "approximated as
+    /// the standard deviation of the initial set of residuals").
+    pub initial: Option<f64>,
+    /// β ← shrink·β after each level converges (§4.3: 0.5).
+    pub shrink: f64,
+    /// Annealing ends when β_j < stop_ratio·σ_j for every histogram ("until β ≪ σ").
+    pub stop_ratio: f64,
+}
+
+/// Where the schedule stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// β is being annealed with k = k₀.
+    Annealing,
+    /// β ≪ σ: k adapts to the data (§4.5) and the model is refitted every update.
+    Final,
+    /// The final round has settled at the model's scale: the model is held fixed so IRLS can
+    /// converge on it instead of chasing histogram bin-count jitter.
+    Frozen,
+}
+
+/// Which convergence tests the driver may apply after an update.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Convergence {
+    /// Still annealing: no stop on a small update (the level just ends).
+    NotYet,
+    /// Final round: stop when the update is below the tolerances.
+    Tolerance,
+    /// Model frozen: also stop when the iterates return to where they were two updates ago.
+    ToleranceOrCycle,
+}
+
+/// SIE's state across the updates of one registration.
+#[derive(Clone, Debug)]
+pub struct Schedule {
+    estimator: SieEstimator,
+    beta: BetaSchedule,
+    phase: Phase,
+    level_updates: u32,
+    started: bool,
+}
+
+impl Schedule {
+    pub fn new(options: SieOptions, beta: BetaSchedule) -> Self {
+        Schedule {
+            estimator: SieEstimator::new(options),
+            beta,
+            phase: Phase::Annealing,
+            level_updates: 0,
+            started: false,
+        }
+    }
+
+    /// The estimator with its last fitted models.
+    pub fn estimator(&self) -> &SieEstimator {
+        &self.estimator
+    }
+
+    /// True while β is being annealed.
+    pub fn annealing(&self) -> bool {
+        self.phase == Phase::Annealing
+    }
+
+    /// Fits SIE to this update's residuals (rows × `cols`, divided by the row scales F_i of
+    /// §4.4) and fills P(I|R_i) and the IRLS weights of eq. (regprob3) / (regprob3GGD):
+    /// w_i = σ^-p·max(‖r_i‖, δ)^(p-2)·P(I|r_i)·F_i^-2; σ^-p is common to all rows and dropped.
+    pub fn weigh(
+        &mut self,
+        normalised: &[f64],
+        cols: usize,
+        row_scales: &[f64],
+        probabilities: &mut [f64],
+        weights: &mut [f64],
+    ) {
+        let estimator = &mut self.estimator;
+        if !self.started {
+            self.started = true;
+            estimator.prepare(normalised, cols);
+            let beta = match self.beta.initial {
+                Some(b) => vec![b],
+                None => estimator.residual_rms(normalised, cols),
+            };
+            estimator.set_beta(&beta);
+            if let Ok(f) = std::env::var("SIE_BETA0_SCALE") {
+                let f: f64 = f.parse().unwrap();
+                let scaled: Vec<f64> = beta.iter().map(|b| b * f).collect();
+                estimator.set_beta(&scaled);
+            }
+            if let Ok(f) = std::env::var("SIE_BETA0_FIT") {
+                let f: f64 = f.parse().unwrap();
+                estimator.fit(normalised, cols);
+                let sigmas: Vec<f64> = estimator.models().iter().map(|m| f * m.shape.sigma).collect();
+                estimator.set_beta(&sigmas);
+            }
+        }
+        match self.phase {
+            Phase::Annealing => estimator.fit(normalised, cols),
+            Phase::Final => {
+                // §4.5: after convergence, k = P(I|H)^-3 from the data at hand.
+                estimator.adapt_penalty();
+                estimator.fit(normalised, cols);
+            }
+            Phase::Frozen => {}
+        }
+        estimator.probabilities(normalised, cols, probabilities);
+        let p = estimator.mean_shape();
+        let delta = (SHAPE_DELTA * self.width()).max(1e-12);
+        for (i, (w, (&probability, &scale))) in weights
+            .iter_mut()
+            .zip(probabilities.iter().zip(row_scales))
+            .enumerate()
+        {
+            let shape_factor = if p == 2.0 {
+                1.0
+            } else {
+                row_norm(normalised, cols, i).max(delta).powf(p - 2.0)
+            };
+            *w = probability * shape_factor / (scale * scale);
+        }
+    }
+
+    /// P(I|R_i) under the current model (fitted to these residuals first when no update has
+    /// fitted one yet, e.g. when the iteration budget was already spent).
+    pub fn probabilities(&mut self, normalised: &[f64], cols: usize, out: &mut [f64]) {
+        if !self.started {
+            let mut unused = vec![0.0; out.len()];
+            self.weigh(normalised, cols, &vec![1.0; out.len()], out, &mut unused);
+            return;
+        }
+        self.estimator.probabilities(normalised, cols, out);
+    }
+
+    /// The narrowest model width min_j(σ_j + β_j), normalised units.
+    pub fn width(&self) -> f64 {
+        self.estimator
+            .effective_scales()
+            .into_iter()
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Advances the schedule after an update. `below_tolerance`: the update was below the
+    /// caller's tolerances; `displacement`: how far it moved the rows (normalised RMS). A level
+    /// ends when the update is small against the model width σ+β (or after
+    /// MAX_LEVEL_UPDATES); β then shrinks (§4.3), and once β ≪ σ the final round begins.
+    pub fn after_update(&mut self, below_tolerance: bool, displacement: f64) -> Convergence {
+        let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * self.width();
+        match self.phase {
+            Phase::Annealing => {
+                self.level_updates += 1;
+                let cap = std::env::var("SIE_LEVEL_CAP").ok().and_then(|v| v.parse().ok()).unwrap_or(MAX_LEVEL_UPDATES);
+                if settled || self.level_updates >= cap {
+                    self.level_updates = 0;
+                    if self.estimator.beta_negligible(self.beta.stop_ratio) {
+                        self.phase = Phase::Final;
+                    } else {
+                        self.estimator.shrink_beta(self.beta.shrink);
+                    }
+                }
+                Convergence::NotYet
+            }
+            Phase::Final => {
+                if settled {
+                    self.phase = Phase::Frozen;
+                }
+                Convergence::Tolerance
+            }
+            Phase::Frozen => Convergence::ToleranceOrCycle,
+        }
+    }
+}
+
+/// ‖row‖ of a row-major matrix.
+pub(crate) fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
+    values[row * cols..(row + 1) * cols]
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
+}
