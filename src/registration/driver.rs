@@ -55,7 +55,10 @@ pub fn register_correspondences(
                 skip_non_finite: false,
                 ..config.clone()
             };
-            let result = register_correspondences(&source_kept, &target_kept, init, &finite, hooks)?;
+            let share = kept.len() as f64 / source.len() as f64;
+            let result = with_share(hooks, share, |hooks| {
+                register_correspondences(&source_kept, &target_kept, init, &finite, hooks)
+            })?;
             return Ok(expand(result, &kept, source.len(), Some(&kept)));
         }
     }
@@ -115,16 +118,42 @@ fn register_finite_clouds(
     });
     let source_points = pick(source, &source_kept);
     let target_points = pick(target, &target_kept);
-    let result = register_clouds(
-        &source_points,
-        &target_points,
-        normals.as_deref(),
-        init,
-        &finite,
-        hooks,
-    )?;
+    let share = source_points.len() as f64 / source.len().max(1) as f64;
+    let result = with_share(hooks, share, |hooks| {
+        register_clouds(
+            &source_points,
+            &target_points,
+            normals.as_deref(),
+            init,
+            &finite,
+            hooks,
+        )
+    })?;
     let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
     Ok(expand(result, &source_map, source.len(), target_kept.as_deref()))
+}
+
+/// Runs `register` with `hooks` whose observer sees inlier fractions scaled by `share` (kept
+/// / given source points): dropped points count 0, as in the result.
+fn with_share<R>(hooks: Hooks<'_>, share: f64, register: impl FnOnce(Hooks<'_>) -> R) -> R {
+    let Hooks { mut noise, observer } = hooks;
+    // A reborrow with the shorter lifetime of the wrapper below.
+    let noise = noise.as_deref_mut().map(|n| n as &mut dyn NoiseScales);
+    let Some(outer) = observer else {
+        return register(Hooks {
+            noise,
+            observer: None,
+        });
+    };
+    let mut scaled = |entry: &TraceEntry| {
+        let mut entry = entry.clone();
+        entry.inlier_fraction *= share;
+        outer(&entry)
+    };
+    register(Hooks {
+        noise,
+        observer: Some(&mut scaled),
+    })
 }
 
 /// Maps per-point results of a registration on kept points back to the caller's indexing:
@@ -146,7 +175,11 @@ fn expand(
             _ => target,
         };
     }
-    result.inlier_fraction *= source_kept.len() as f64 / source_count.max(1) as f64;
+    let share = source_kept.len() as f64 / source_count.max(1) as f64;
+    result.inlier_fraction *= share;
+    for entry in &mut result.trace {
+        entry.inlier_fraction *= share;
+    }
     result.probabilities = probabilities;
     result.correspondences = correspondences;
     result
@@ -557,8 +590,8 @@ fn run(
                 rows,
                 cols,
                 &work,
-                rotation_change,
-                translation_change,
+                &transform,
+                (rotation_change, translation_change),
             );
             let cancelled = observer
                 .as_mut()
@@ -669,23 +702,28 @@ fn run(
     })
 }
 
+/// `transform` is the one this iteration's update reached; `(rotation_change,
+/// translation_change)` the update's size.
 fn trace_entry(
     iteration: u32,
     weighting: &Weighting,
     rows: &Rows,
     cols: usize,
     work: &Workspace,
-    rotation_change: f64,
-    translation_change: f64,
+    transform: &Matrix4<f64>,
+    (rotation_change, translation_change): (f64, f64),
 ) -> TraceEntry {
     let (sigma, beta, penalty, _) = weighting.sigma_beta_penalty();
     let n = rows.len();
-    let mean_probability = match weighting {
-        Weighting::Sie { .. } => work.probabilities.iter().sum::<f64>() / n as f64,
+    // The summary's meaning, Σ P / source points (unmatched count 0), over the points this
+    // iteration looked at (all of them, or the sample).
+    let considered = rows.considered.max(n).max(1) as f64;
+    let inlier_fraction = match weighting {
+        Weighting::Sie { .. } => work.probabilities.iter().sum::<f64>() / considered,
         Weighting::Baseline { .. } => {
             let largest = work.weights.iter().cloned().fold(0.0, f64::max);
             if largest > 0.0 {
-                work.weights.iter().sum::<f64>() / (n as f64 * largest)
+                work.weights.iter().sum::<f64>() / (considered * largest)
             } else {
                 0.0
             }
@@ -701,7 +739,7 @@ fn trace_entry(
         sigma: sigma.first().copied().unwrap_or(0.0),
         beta: beta.first().copied().unwrap_or(0.0),
         penalty,
-        inlier_fraction: mean_probability,
+        inlier_fraction,
         rmse: if weight_sum > 0.0 {
             (weighted_square / weight_sum).sqrt()
         } else {
@@ -710,5 +748,6 @@ fn trace_entry(
         translation_change,
         rotation_change,
         correspondences: n,
+        transform: *transform,
     }
 }
