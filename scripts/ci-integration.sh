@@ -101,6 +101,7 @@ check_soname() {
     [ "$(readlink "$prefix/lib/libsie.so")" = libsie.so.0.1 ] && [ -f "$prefix/lib/libsie.a" ]
 }
 step "versioned soname and links" check_soname
+step "install: bin/sie (the CLI)" "$prefix/bin/sie" --version
 
 # ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
 step "consumer: configure with find_package(sie 0.1)" \
@@ -144,10 +145,51 @@ if [ -f "$data/pcl-test-bunny/bun0.pcd" ]; then
   step "compare_pcl: bun0 -> bun4 (1 deg, 5 mm)" bunny_default
   step "pcl_drop_in: the README's PCL snippets on bun0 -> bun4" \
     "$build/examples/pcl_drop_in" "$data/pcl-test-bunny/bun0.pcd" "$data/pcl-test-bunny/bun4.pcd"
+  # sie --aligned writes float32 x y z, which pcl::io::loadPCDFile<pcl::PointXYZ> reads (binary
+  # and ascii); pcd_check compares every point with T * source, T from the same run's -o.
+  aligned_pcd_read_by_pcl() {
+    local encoding=$1
+    shift
+    "$prefix/bin/sie" register "$data/pcl-test-bunny/bun0.pcd" "$data/pcl-test-bunny/bun4.pcd" -q \
+      --aligned "$build/aligned_$encoding.pcd" -o "$build/aligned_T.txt" "$@" >/dev/null &&
+      grep -aq "^DATA $encoding" "$build/aligned_$encoding.pcd" &&
+      "$build/examples/pcd_check" "$build/aligned_$encoding.pcd" "$data/pcl-test-bunny/bun0.pcd" \
+        "$build/aligned_T.txt" 1e-5
+  }
+  step "sie --aligned out.pcd (binary) read by pcl::io::loadPCDFile<PointXYZ>" aligned_pcd_read_by_pcl binary
+  step "sie --aligned out.pcd --aligned-ascii read by PCL" aligned_pcd_read_by_pcl ascii --aligned-ascii
+  # pcl_icp-style tool, only the type name changed: bun0 onto bun4, its .tf.pcd checked against
+  # the bun.conf ground truth (pcl-test-bunny/README.md) within 3 mm per point.
+  pcl_icp_tool() {
+    rm -rf "$build/icp" && mkdir -p "$build/icp" &&
+      cp "$data/pcl-test-bunny/bun4.pcd" "$data/pcl-test-bunny/bun0.pcd" "$build/icp/" &&
+      printf '%s\n' ' 0.826351  0.004137 -0.563141  0.036838' '-0.0106    0.99991  -0.00821  -0.000257' \
+        ' 0.563056  0.012754  0.82632   0.038321' >"$build/icp/bun0_to_bun4.txt" &&
+      "$build/examples/pcl_icp_tool_sie" "$build/icp/bun4.pcd" "$build/icp/bun0.pcd" &&
+      "$build/examples/pcd_check" "$build/icp/bun0.tf.pcd" "$build/icp/bun0.pcd" "$build/icp/bun0_to_bun4.txt" 0.003
+  }
+  step "pcl_icp_tool_sie (pcl_icp-style, sie::PclRegistration): bun0 -> bun4 within 3 mm" pcl_icp_tool
 else
-  echo ">> skipped: compare_pcl on the bunny ($data/pcl-test-bunny not present)"
-  skipped=$((skipped + 1))
+  echo ">> skipped: compare_pcl, --aligned read by PCL, pcl_icp_tool on the bunny ($data/pcl-test-bunny not present)"
+  skipped=$((skipped + 3))
 fi
+
+# PCL's ICP tutorial program with sie::PclRegistration: the generated sources differ from the
+# PCL originals in the type name only, and the tutorial converges onto the 0.7 shift.
+only_type_name_changed() {
+  local program
+  for program in pcl_tutorial_icp pcl_icp_tool; do
+    diff <(sed 's/pcl::IterativeClosestPoint/sie::PclRegistration/g' "examples-cpp/$program.cpp") \
+      <(tail -n +2 "$build/examples/${program}_sie.cpp") || return 1
+  done
+}
+step "PCL programs: only the type name changed" only_type_name_changed
+pcl_tutorial() {
+  "$build/examples/pcl_tutorial_icp_sie" | tee "$build/pcl_tutorial.txt" &&
+    awk '/^has converged:1 score: / { ok = $NF < 1e-6; getline; tx = $4 }
+         END { exit !(ok && tx > 0.699 && tx < 0.701) }' "$build/pcl_tutorial.txt"
+}
+step "PCL's ICP tutorial with sie::PclRegistration: converged, score < 1e-6, x shift 0.7" pcl_tutorial
 if [ -f "$data/small_gicp-data/source.ply" ]; then
   step "compare_pcl: LiDAR pair (0.5 deg, 5 cm)" compare compare_lidar.txt \
     "$data/small_gicp-data/source.ply" "$data/small_gicp-data/target.ply" \
