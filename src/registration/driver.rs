@@ -303,6 +303,8 @@ pub fn estimate_inliers(
             normalised[i]
         )));
     }
+    // After every argument check, so that a bad argument is reported as such.
+    require_points("residual rows", rows, MIN_ESTIMATE_ROWS)?;
     let mut sie = SieEstimator::new(options.clone());
     sie.prepare(&normalised, cols);
     sie.set_beta(&[beta]);
@@ -317,6 +319,10 @@ pub fn estimate_inliers(
         prior,
     })
 }
+
+/// Standalone SIE fits a histogram: below this many rows there is no peak to fit, and the
+/// answer (every P at its cap) would mean nothing.
+pub const MIN_ESTIMATE_ROWS: usize = 10;
 
 fn require_points(what: &str, count: usize, minimum: usize) -> Result<(), Error> {
     if count < minimum {

@@ -261,7 +261,7 @@ pub struct InlierEstimate {
     pub prior: f64,
 }
 
-pub use driver::{estimate_inliers, register_clouds, register_correspondences};
+pub use driver::{MIN_ESTIMATE_ROWS, estimate_inliers, register_clouds, register_correspondences};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.
 #[derive(Default)]
