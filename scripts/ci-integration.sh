@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # The integration half of the test suite (called by scripts/test-all.sh): builds libsie with
 # CMake, runs the C and C++ ABI tests with ctest (both also under valgrind), installs into
-# a staging prefix, builds a separate consumer project and examples-cpp against that install
-# (find_package + pkg-config), runs the PCL comparison on the bunny and LiDAR pairs with the
-# accuracy checks, and runs the Python binding's pytest suite.
+# a staging prefix (library, headers, bin/sie), builds a separate consumer project and
+# examples-cpp against that install (find_package + pkg-config), runs the PCL comparison on the
+# bunny and LiDAR pairs with the accuracy checks, PCL's ICP tutorial and a pcl_icp-style tool
+# built with sie::PclRegistration, loads `sie --aligned` output with PCL, and for Python: pip
+# builds libsie into the package, the pytest suite (with Open3D and a Dask LocalCluster), a
+# wheel installed into a clean venv without Rust, and the Open3D example.
 #
 # Everything is built under build/ci (override with SIE_INTEGRATION_BUILD). The closing line is
 # "integration: N passed, M failed" (ctest and pytest counts plus one per other step); the exit
@@ -199,17 +202,71 @@ else
   skipped=$((skipped + 1))
 fi
 
-# ---- Python: install the package into a venv and run its tests -----------------------------------
+# ---- Python: pip builds libsie into the package; wheel into a clean venv; Open3D, Dask -------------
+version=$(sed -n 's/^version = "\([0-9.]*\)"/\1/p' Cargo.toml | head -1)
+venv=$build/venv
 python_setup() {
-  [ -x "$build/venv/bin/python" ] || python3 -m venv "$build/venv" || return 1
-  "$build/venv/bin/pip" install -q --disable-pip-version-check numpy pytest || return 1
-  # A copy, so that setuptools' build/ and egg-info stay out of the source tree.
-  rm -rf "$build/python-src" && cp -r bindings/python "$build/python-src" &&
-    "$build/venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$build/python-src"
+  [ -x "$venv/bin/python" ] || python3 -m venv "$venv" || return 1
+  # Test tools and the optional libraries the tests and examples use (Open3D's CPU-only wheel,
+  # small_gicp, dask.distributed); pinned to the versions measured in the README.
+  "$venv/bin/pip" install -q --disable-pip-version-check pytest "open3d-cpu==0.20.0" "small_gicp==1.0.1" \
+    "dask[distributed]==2026.8.0" || return 1
+  # The README's command. setup.py runs cargo; CMake's cargo target directory is reused, so
+  # this compiles nothing new (a fresh clone without it compiles the library here).
+  CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" install -q --disable-pip-version-check \
+    --force-reinstall ./bindings/python &&
+    "$venv/bin/pip" show sie | grep -qx "Version: $version"
 }
-step "python: venv and pip install ./bindings/python" python_setup
-counted "pytest: bindings/python" env SIE_LIBRARY="$prefix/lib/libsie.so.0.1" SIE_DATA_DIR="$data" \
-  "$build/venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
+step "python: pip install ./bindings/python (cargo builds libsie into the package)" python_setup
+# No SIE_LIBRARY: the library inside the installed package is the one loaded (checked by the
+# suite with SIE_EXPECT_BUNDLED). Open3D, small_gicp and dask must be there (SIE_REQUIRE_OPTIONAL).
+counted "pytest: bindings/python (binding, Open3D, Dask LocalCluster)" \
+  env -u SIE_LIBRARY SIE_EXPECT_BUNDLED=1 SIE_REQUIRE_OPTIONAL=1 SIE_DATA_DIR="$data" \
+  "$venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
+
+# pip wheel gives a py3-none-<platform> wheel carrying the library, versioned with it, which
+# installs and registers in a clean venv on a PATH without cargo or a compiler.
+wheel_in_clean_venv() {
+  rm -rf "$build/wheelhouse" "$build/clean-venv" "$build/clean-home" && mkdir -p "$build/clean-home" &&
+    CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps \
+      -w "$build/wheelhouse" ./bindings/python || return 1
+  local wheel
+  wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-linux_*.whl) || return 1
+  "$venv/bin/python" -m zipfile -l "$wheel" | grep -q 'sie/libsie.so.0.1 ' &&
+    "$venv/bin/python" -m zipfile -l "$wheel" | grep -q 'sie/py.typed ' || return 1
+  python3 -m venv "$build/clean-venv" || return 1
+  # No Rust, no compiler, no repository: a bare PATH, an empty HOME (no ~/.cargo), another cwd.
+  (
+    cd "$build/clean-home" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" sh -c '! command -v cargo && ! command -v rustc' &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/pip" install -q \
+        --disable-pip-version-check "$wheel" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/python" -c '
+import pathlib, numpy as np, sie
+assert pathlib.Path(sie._lib._name).parent == pathlib.Path(sie.__file__).parent, sie._lib._name
+rng = np.random.default_rng(1)
+target = rng.uniform(-1, 1, (2000, 3)) * [2, 2, 0.3]
+c, s = np.cos(0.05), np.sin(0.05)
+truth = np.array([[c, -s, 0, 0.05], [s, c, 0, -0.02], [0, 0, 1, 0.01], [0, 0, 0, 1]])
+source = (target - truth[:3, 3]) @ truth[:3, :3] + rng.normal(0, 0.002, target.shape)
+result = sie.align(source, target, metric=sie.Metric.POINT_TO_POINT)
+error = np.abs(result.transform - truth).max()
+print(f"clean venv: sie {sie.__version__} from {sie._lib._name}: {result.summary.stop_reason}, error {error:.1e}")
+assert result.summary.converged and error < 1e-3
+'
+  )
+}
+step "python: pip wheel -> clean venv without Rust: installs, imports, registers" wheel_in_clean_venv
+
+# The examples as a newcomer runs them (small work): sie vs Open3D vs small_gicp on the bunny,
+# and the Dask example on two LocalCluster worker processes.
+if [ -f "$data/pcl-test-bunny/bun0.pcd" ]; then
+  step "python example: sie, Open3D and small_gicp on bun0 -> bun4" \
+    "$venv/bin/python" bindings/python/examples/compare_open3d_small_gicp.py --pair bunny --data "$data"
+else
+  echo ">> skipped: the Open3D example ($data/pcl-test-bunny not present)"
+  skipped=$((skipped + 1))
+fi
 
 if [ ${#failures[@]} -gt 0 ]; then
   printf ">> failed: %s\n" "${failures[@]}"
