@@ -136,9 +136,9 @@ fn register_finite_clouds(
 /// Runs `register` with `hooks` whose observer sees inlier fractions scaled by `share` (kept
 /// / given source points): dropped points count 0, as in the result.
 fn with_share<R>(hooks: Hooks<'_>, share: f64, register: impl FnOnce(Hooks<'_>) -> R) -> R {
-    let Hooks { mut noise, observer } = hooks;
-    // A reborrow with the shorter lifetime of the wrapper below.
-    let noise = noise.as_deref_mut().map(|n| n as &mut dyn NoiseScales);
+    let Hooks { noise, observer } = hooks;
+    // Coerced to the shorter lifetime of the wrapper below.
+    let noise = noise.map(|n| n as &mut dyn NoiseScales);
     let Some(outer) = observer else {
         return register(Hooks {
             noise,
