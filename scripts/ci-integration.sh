@@ -209,7 +209,8 @@ python_setup() {
   [ -x "$venv/bin/python" ] || python3 -m venv "$venv" || return 1
   # Test tools and the optional libraries the tests and examples use (Open3D's CPU-only wheel,
   # small_gicp, dask.distributed); pinned to the versions measured in the README.
-  "$venv/bin/pip" install -q --disable-pip-version-check pytest "open3d-cpu==0.20.0" "small_gicp==1.0.1" \
+  # mypy: a test checks the package's type hints from a user's side.
+  "$venv/bin/pip" install -q --disable-pip-version-check pytest mypy "open3d-cpu==0.20.0" "small_gicp==1.0.1" \
     "dask[distributed]==2026.8.0" || return 1
   # The README's command. setup.py runs cargo; CMake's cargo target directory is reused, so
   # this compiles nothing new (a fresh clone without it compiles the library here).

@@ -121,7 +121,7 @@ class Cloud(_NamedEnum):
     TARGET = 1
 
 
-def _enum_or_int(kind, value):
+def _enum_or_int(kind: Any, value: int) -> Any:
     try:
         return kind(value)
     except ValueError:
@@ -140,7 +140,7 @@ class SieError(Exception):
 
 def library_version() -> str:
     """The loaded library's version, e.g. "0.1.0"."""
-    return _lib.sie_version_string().decode()
+    return str(_lib.sie_version_string().decode())
 
 
 def _package_version() -> str:
@@ -258,7 +258,7 @@ class _Points:
     """An N x k array as the library reads it: pointer, count, byte stride, element type.
     Holds a reference to the array (the original or a converted copy) while in use."""
 
-    def __init__(self, array: np.ndarray, dtype):
+    def __init__(self, array: np.ndarray, dtype: npt.DTypeLike) -> None:
         self.array = array
         self.dtype = np.dtype(dtype)
         self.count = array.shape[0]
@@ -342,7 +342,7 @@ def _transform_in(init: Optional[npt.ArrayLike]) -> Optional[np.ndarray]:
     return matrix
 
 
-def _double_pointer(array: Optional[np.ndarray]):
+def _double_pointer(array: Optional[np.ndarray]) -> Any:
     return None if array is None else array.ctypes.data_as(_native.c_double_p)
 
 
@@ -372,8 +372,8 @@ class Context:
             raise MemoryError("sie_context_new returned NULL")
         self._handle = ctypes.c_void_p(handle)
         # The ctypes callback objects the library points at, and what a callback raised.
-        self._noise_function = None
-        self._progress_function = None
+        self._noise_function: Optional[Any] = None
+        self._progress_function: Optional[Any] = None
         self._callback_error: Optional[BaseException] = None
         for name, value in settings.items():
             if name == "cost":
@@ -410,7 +410,7 @@ class Context:
     def __enter__(self) -> "Context":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self.close()
 
     def __del__(self) -> None:
@@ -500,7 +500,7 @@ class Context:
             self._progress_function = None
             return self
 
-        def trampoline(_user_data, entry):
+        def trampoline(_user_data: Any, entry: Any) -> int:
             try:
                 return 1 if function(_trace_entry(entry.contents)) is False else 0
             except BaseException as error:  # noqa: BLE001 - re-raised by _run after the call
@@ -526,7 +526,7 @@ class Context:
             self._noise_function = None
             return self
 
-        def trampoline(_user_data, cloud, xyz, n, out_sigma):
+        def trampoline(_user_data: Any, cloud: int, xyz: Any, n: int, out_sigma: Any) -> int:
             # Nothing may propagate into the library (ctypes would print and return 0).
             try:
                 points = np.ctypeslib.as_array(xyz, shape=(n, 3)) if n else np.empty((0, 3))
@@ -622,7 +622,7 @@ class Context:
             _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
         )
 
-    def _array(self, getter, dtype, ctype) -> np.ndarray:
+    def _array(self, getter: Any, dtype: npt.DTypeLike, ctype: Any) -> np.ndarray:
         length = ctypes.c_size_t(0)
         self._check(getter(self._handle, None, 0, ctypes.byref(length)))
         values = np.empty(length.value, dtype=dtype)

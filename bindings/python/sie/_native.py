@@ -10,6 +10,7 @@ import ctypes.util
 import os
 import sys
 from pathlib import Path
+from typing import Iterator
 
 # The ABI this module is written against: sie.h 0.1 (soname libsie.so.0.1).
 ABI_MAJOR = 0
@@ -156,7 +157,7 @@ _SIGNATURES = {
 BUNDLED = Path(__file__).resolve().parent / SONAME
 
 
-def _candidates():
+def _candidates() -> Iterator[str]:
     """Where to look for the library, in order (see the package README)."""
     explicit = os.environ.get("SIE_LIBRARY")
     if explicit:

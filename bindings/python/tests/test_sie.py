@@ -540,3 +540,28 @@ def test_library_search_order():
         found = _import_in_subprocess({**base, "LD_LIBRARY_PATH": str(loaded.parent)})
         assert found.returncode == 0, found.stderr
         assert found.stdout.strip() in ("libsie.so.0.1", str(loaded))
+
+
+def test_type_hints_serve_a_strict_mypy_user(tmp_path):
+    """py.typed: mypy --strict on user code finds sie's hints (no missing-stubs error) and
+    catches a misuse."""
+    from conftest import require
+
+    mypy = require("mypy.api")
+    good = tmp_path / "good.py"
+    good.write_text(
+        "import numpy as np\n"
+        "import sie\n\n\n"
+        "def register(source: np.ndarray, target: np.ndarray) -> np.ndarray:\n"
+        "    result: sie.Registration = sie.align(source, target, max_iterations=50)\n"
+        "    reason: sie.StopReason = result.summary.stop_reason\n"
+        "    print(reason, result.summary.sigma[0] + 1.0)\n"
+        "    return result.transform\n"
+    )
+    cache = ["--cache-dir", str(tmp_path / "mypy-cache")]  # numpy's stubs analysed once
+    out, err, status = mypy.run(["--strict", *cache, str(good)])
+    assert status == 0, out + err
+    bad = tmp_path / "bad.py"
+    bad.write_text("import sie\n\nsigma: str = sie.Context().summary().sigma\n")
+    out, err, status = mypy.run(["--strict", *cache, str(bad)])
+    assert status == 1 and "Incompatible types" in out, out + err
