@@ -215,8 +215,10 @@ python_setup() {
   # The README's command. setup.py runs cargo; CMake's cargo target directory is reused, so
   # this compiles nothing new (a fresh clone without it compiles the library here).
   CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" install -q --disable-pip-version-check \
-    --force-reinstall ./bindings/python &&
-    "$venv/bin/pip" show sie | grep -qx "Version: $version"
+    --force-reinstall ./bindings/python || return 1
+  # Captured first: with pipefail, grep -q closing the pipe early would fail the producer.
+  local shown
+  shown=$("$venv/bin/pip" show sie) && grep -qx "Version: $version" <<<"$shown"
 }
 step "python: pip install ./bindings/python (cargo builds libsie into the package)" python_setup
 # No SIE_LIBRARY: the library inside the installed package is the one loaded (checked by the
@@ -233,8 +235,9 @@ wheel_in_clean_venv() {
       -w "$build/wheelhouse" ./bindings/python || return 1
   local wheel
   wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-linux_*.whl) || return 1
-  "$venv/bin/python" -m zipfile -l "$wheel" | grep -q 'sie/libsie.so.0.1 ' &&
-    "$venv/bin/python" -m zipfile -l "$wheel" | grep -q 'sie/py.typed ' || return 1
+  local contents
+  contents=$("$venv/bin/python" -m zipfile -l "$wheel") &&
+    grep -q 'sie/libsie.so.0.1 ' <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents" || return 1
   python3 -m venv "$build/clean-venv" || return 1
   # No Rust, no compiler, no repository: a bare PATH, an empty HOME (no ~/.cargo), another cwd.
   (
