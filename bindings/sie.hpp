@@ -219,8 +219,9 @@ struct InlierEstimate {
 using NoiseFunction = std::function<void(Cloud cloud, const double *xyz, std::size_t n, double *sigma)>;
 
 /**
- * Per-iteration progress: receives the iteration's trace entry (valid during the call) on the
- * thread calling align(). Return false to cancel the registration (it then stops with the
+ * Per-iteration progress: receives the iteration's trace entry (valid during the call; its
+ * `transform` is the row-major T_target_source the update reached) on the thread calling
+ * align(). Return false to cancel the registration (it then stops with the
  * transform reached); throw to cancel it and have align() rethrow the exception.
  */
 using ProgressFunction = std::function<bool(const TraceEntry &entry)>;

@@ -5,8 +5,9 @@
  *   Eigen::Matrix4d T = sie::align(ctx, *source, *target);          // any PCL point type with xyz
  *   Eigen::Matrix4d T = sie::align_with_normals(ctx, *source, *target_with_normals);
  *
- *   sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> reg;         // pcl::Registration-style
- *   reg.setInputSource(source); reg.setInputTarget(target); reg.align(aligned);
+ *   sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> icp;         // a pcl::Registration: in place
+ *   icp.setInputSource(source); icp.setInputTarget(target);        // of pcl::IterativeClosestPoint
+ *   icp.align(aligned); icp.hasConverged(); icp.getFitnessScore(); icp.getFinalTransformation();
  *
  * Clouds are passed to the library in place through its byte-stride API (sizeof(PointT) between
  * points): nothing is copied. A NaN coordinate is Status::NonFiniteInput unless
@@ -23,11 +24,20 @@
 #include "sie.hpp"
 
 #include <Eigen/Core>
+#include <Eigen/LU>
+#include <pcl/common/io.h>
+#include <pcl/common/point_tests.h>
+#include <pcl/common/transforms.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
+#include <pcl/registration/registration.h>
 #include <pcl/type_traits.h>
 
+#include <algorithm>
+#include <cmath>
+#include <optional>
 #include <string>
+#include <vector>
 
 namespace sie {
 
@@ -107,78 +117,296 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
 }
 
 /**
- * The subset of pcl::Registration's interface a pipeline usually calls, so replacing
- * pcl::IterativeClosestPoint<PointSource, PointTarget, Scalar> is a change of type name.
- * With a target type that has normals, they are used (setUseTargetNormals(false) to estimate
- * them instead).
+ * sie as a pcl::Registration: a drop-in for pcl::IterativeClosestPoint<PointSource, PointTarget>
+ * (a change of type name), and a Registration::Ptr for anything that takes one
+ * (pcl::registration::IncrementalRegistration, ELCH, your own pipeline).
+ *
+ * What PCL's settings mean here:
+ * - setMaximumIterations(n): caps sie's updates at n. The default is sie's 200, not PCL's 10:
+ *   SIE anneals its noise model over typically 30-60 updates.
+ * - hasConverged(): PCL's convention. True when sie converged, and also when it stopped at the
+ *   iteration cap (PCL's CONVERGENCE_CRITERIA_ITERATIONS; setFailureAfterMaximumIterations(true)
+ *   makes that false, as in PCL's criteria); false when the registration could not run or
+ *   found no unique solution. summary().stop_reason has sie's own verdict.
+ * - setTransformationEpsilon(e) (> 0): converged when an update translates by at most sqrt(e)
+ *   (PCL compares the squared translation) and rotates by at most acos(1 - e), or
+ *   acos(setTransformationRotationEpsilon's cosine) when that is set. 0 keeps sie's tolerances.
+ * - setEuclideanFitnessEpsilon(e) (> 0): also converged when, after SIE's annealing, the
+ *   weighted mean squared residual changes by less than the fraction e between two updates
+ *   (PCL's relative MSE criterion).
+ * - setMaxCorrespondenceDistance, setRANSACOutlierRejectionThreshold, correspondence
+ *   rejectors and transformation estimation objects are accepted and not used: sie has no
+ *   distance gate and estimates the inliers itself. setSearchMethodTarget gives the kd-tree
+ *   getFitnessScore uses (sie matches with its own).
+ * - getFitnessScore(max_range) is PCL's own: mean squared nearest-neighbour distance of the
+ *   aligned source to the target.
+ * - registerVisualizationCallback(f): f(source moved by the current transform, source indices,
+ *   target, their nearest target points) after every update, like PCL's ICP.
+ * - Errors follow PCL: a missing input cloud, too few points or bad input make align() print
+ *   PCL_ERROR and return with hasConverged() == false, the guess as the final transformation
+ *   and the source moved by it; lastError() keeps sie's status and message. Exceptions thrown
+ *   by a visualisation callback propagate out of align().
+ * - Metric: point-to-plane (sie's default), with the target's own normals when PointTarget has
+ *   normal_x/y/z (setUseTargetNormals(false) estimates them instead). When that finds no unique
+ *   solution (a handful of points, a single plane) align() reruns point-to-point from the same
+ *   guess, like pcl::IterativeClosestPoint; setMetric() fixes the metric instead.
+ * - PointSource and PointTarget must be the same type with PCL 1.13: pcl::Registration's own
+ *   initCompute() does not compile for mixed types (its reciprocal kd-tree types clash). For a
+ *   PointXYZ source on a PointNormal target use sie::align_with_normals, or PointNormal for both.
+ * - Clouds with is_dense == false, or target normals with NaN, drop the non-finite points
+ *   (normals) as PCL's kd-trees do; setIndices() registers that subset of the source.
+ * The adapter sets the context's iteration cap, tolerances, metric, skip_non_finite and
+ * progress callback on each align(); other sie settings (cost, noise model, threads, noise
+ * callback, ...) are the context()'s.
  */
-template <typename PointSource, typename PointTarget, typename Scalar = float> class PclRegistration {
+template <typename PointSource, typename PointTarget, typename Scalar = float>
+class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scalar> {
+    using Base = pcl::Registration<PointSource, PointTarget, Scalar>;
+
   public:
-    using PointCloudSource = pcl::PointCloud<PointSource>;
-    using PointCloudTarget = pcl::PointCloud<PointTarget>;
-    using Matrix4 = Eigen::Matrix<Scalar, 4, 4>;
+    using typename Base::Matrix4;
+    using typename Base::PointCloudSource;
+    using typename Base::PointCloudTarget;
+    using Ptr = pcl::shared_ptr<PclRegistration<PointSource, PointTarget, Scalar>>;
+    using ConstPtr = pcl::shared_ptr<const PclRegistration<PointSource, PointTarget, Scalar>>;
 
-    PclRegistration() = default;
-    explicit PclRegistration(Context context) : context_(std::move(context)) {}
+    /** sie's default cap on updates (RegistrationConfig::default().max_iterations). */
+    static constexpr int kDefaultMaximumIterations = 200;
 
-    /** The underlying context, for sie settings (cost, metric, noise callback, ...). */
+    PclRegistration() { init(); }
+    explicit PclRegistration(Context context) : context_(std::move(context)) { init(); }
+
+    /** The underlying context, for sie settings (cost, noise model, threads, noise callback, ...). */
     Context &context() noexcept { return context_; }
 
-    void setInputSource(const typename PointCloudSource::ConstPtr &cloud) { source_ = cloud; }
-    void setInputTarget(const typename PointCloudTarget::ConstPtr &cloud) { target_ = cloud; }
+    /** Use a PointTarget type's own normals for point-to-plane (default true). */
     void setUseTargetNormals(bool use) noexcept { use_target_normals_ = use; }
-    void setMaximumIterations(int iterations) { context_.set_max_iterations(static_cast<std::uint32_t>(iterations)); }
+    /** Fix the metric (no point-to-point rerun on a degenerate point-to-plane problem). */
+    void setMetric(Metric metric) noexcept {
+        metric_ = metric;
+        metric_fixed_ = true;
+    }
+    /** As PCL's DefaultConvergenceCriteria: reaching the iteration cap counts as failure. */
+    void setFailureAfterMaximumIterations(bool failure) noexcept { failure_after_max_iterations_ = failure; }
 
-    /** Registers, writes the transformed source into output, keeps the transform. */
-    void align(PointCloudSource &output, const Matrix4 &guess = Matrix4::Identity()) {
-        if (!source_ || !target_) {
-            throw Error(Status::NullArgument, "setInputSource and setInputTarget must be called before align");
+    /** sie's summary of the last align() (stop_reason, sigma, inlier_fraction, ...). */
+    const Summary &summary() const noexcept { return summary_; }
+    /** sie's inlier-probability-weighted RMSE (input units) of the last align(). */
+    double getRmse() const noexcept { return summary_.rmse; }
+    /** The metric the last align() ended with. */
+    Metric getMetricUsed() const noexcept { return metric_used_; }
+    /** Why the last align() could not run (empty after a successful one). */
+    const std::optional<Error> &lastError() const noexcept { return last_error_; }
+
+  protected:
+    using Base::converged_;
+    using Base::final_transformation_;
+    using Base::indices_;
+    using Base::input_;
+    using Base::nr_iterations_;
+    using Base::previous_transformation_;
+    using Base::target_;
+    using Base::transformation_;
+    using Base::tree_;
+    using Base::update_visualizer_;
+
+    void computeTransformation(PointCloudSource &output, const Matrix4 &guess) override {
+        nr_iterations_ = 0;
+        converged_ = false;
+        last_error_.reset();
+        summary_ = Summary{};
+        final_transformation_ = guess;
+        // A subset given by setIndices() is registered on its own (copied); otherwise in place.
+        const bool subset = indices_->size() != input_->size();
+        PointCloudSource selected;
+        if (subset) {
+            pcl::copyPointCloud(*input_, *indices_, selected);
         }
-        const Eigen::Matrix4d guess_d = guess.template cast<double>();
-        Eigen::Matrix4d transform;
-        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
-            transform = use_target_normals_ ? align_with_normals(context_, *source_, *target_, guess_d)
-                                            : sie::align(context_, *source_, *target_, guess_d);
-        } else {
-            transform = sie::align(context_, *source_, *target_, guess_d);
+        const PointCloudSource &source = subset ? selected : *input_;
+        try {
+            register_source(source, guess);
+        } catch (const Error &error) {
+            PCL_ERROR("[pcl::%s::computeTransformation] %s\n", this->getClassName().c_str(), error.what());
+            last_error_ = error;
+            converged_ = false;
+            final_transformation_ = guess;
         }
-        final_transformation_ = transform.cast<Scalar>();
-        summary_ = context_.summary();
-        transform_cloud(*source_, output, transform);
+        move_source(output, final_transformation_);
     }
 
-    Matrix4 getFinalTransformation() const { return final_transformation_; }
-    /** True only when the library reports convergence (unlike PCL, not at the iteration cap). */
-    bool hasConverged() const noexcept { return summary_.converged; }
-    /** sie's weighted RMSE (input units) of the last alignment. */
-    double getRmse() const noexcept { return summary_.rmse; }
-    const Summary &summary() const noexcept { return summary_; }
-
   private:
-    // Rigid transform of xyz (and normals, when the type has them); other fields are copied.
-    static void transform_cloud(const PointCloudSource &input, PointCloudSource &output,
-                                const Eigen::Matrix4d &transform) {
-        if (&input != &output) {
-            output = input;
+    void init() {
+        this->reg_name_ = "sie::PclRegistration";
+        this->max_iterations_ = kDefaultMaximumIterations;
+    }
+
+    void register_source(const PointCloudSource &source, const Matrix4 &guess) {
+        pcl_detail::require_points(source, "source");
+        pcl_detail::require_points(*target_, "target");
+        if (this->max_iterations_ < 1) {
+            throw Error(Status::InvalidArgument,
+                        "setMaximumIterations: " + std::to_string(this->max_iterations_) + " must be >= 1");
         }
-        const Eigen::Matrix3f rotation = transform.topLeftCorner<3, 3>().cast<float>();
-        const Eigen::Vector3f translation = transform.topRightCorner<3, 1>().cast<float>();
-        for (auto &point : output.points) {
-            Eigen::Map<Eigen::Vector3f> xyz(&point.x);
-            xyz = rotation * xyz + translation;
-            if constexpr (pcl::traits::has_normal_v<PointSource>) {
-                Eigen::Map<Eigen::Vector3f> normal(&point.normal_x);
-                normal = rotation * normal;
+        context_.set_max_iterations(static_cast<std::uint32_t>(this->max_iterations_));
+        apply_tolerances();
+        const bool normals = use_target_normals();
+        context_.set_skip_non_finite(!source.is_dense || !target_->is_dense || (normals && !finite_normals()));
+
+        // Progress: the visualiser, PCL's relative-MSE criterion and the last increment.
+        const double fitness_epsilon = this->euclidean_fitness_epsilon_;
+        bool fitness_converged = false;
+        double previous_mse = -1.0;
+        Eigen::Matrix4d previous = guess.template cast<double>(), current = previous;
+        context_.set_progress_callback([&](const TraceEntry &entry) {
+            previous = current;
+            current = Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(entry.transform);
+            if (update_visualizer_) {
+                visualize(source, current);
+            }
+            const double mse = entry.rmse * entry.rmse;
+            if (fitness_epsilon > 0.0 && !entry.annealing && previous_mse > 0.0 &&
+                std::abs(mse - previous_mse) < fitness_epsilon * previous_mse) {
+                fitness_converged = true;
+                return false; // stop: converged by the caller's criterion
+            }
+            previous_mse = entry.annealing ? -1.0 : mse;
+            return true;
+        });
+        struct ClearProgress {
+            Context &context;
+            ~ClearProgress() {
+                try {
+                    context.clear_progress_callback();
+                } catch (...) {
+                }
+            }
+        } clear{context_};
+
+        const Eigen::Matrix4d guess_d = guess.template cast<double>();
+        metric_used_ = metric_fixed_ ? metric_ : Metric::PointToPlane;
+        Eigen::Matrix4d transform = run(source, guess_d, metric_used_, normals);
+        if (!metric_fixed_ && summary_.stop_reason == StopReason::Degenerate) {
+            // Point-to-plane has no unique solution (e.g. all normals from one plane fit):
+            // what pcl::IterativeClosestPoint would do, point-to-point from the same guess.
+            metric_used_ = Metric::PointToPoint;
+            previous_mse = -1.0;
+            previous = current = guess_d;
+            transform = run(source, guess_d, metric_used_, false);
+        }
+        const StopReason stop = summary_.stop_reason;
+        converged_ = stop == StopReason::Converged ||
+                     (stop == StopReason::IterationLimit && !failure_after_max_iterations_) ||
+                     (stop == StopReason::Cancelled && fitness_converged);
+        nr_iterations_ = static_cast<int>(summary_.iterations);
+        final_transformation_ = transform.cast<Scalar>();
+        previous_transformation_ = previous.cast<Scalar>();
+        transformation_ = (current * previous.inverse()).cast<Scalar>();
+    }
+
+    Eigen::Matrix4d run(const PointCloudSource &source, const Eigen::Matrix4d &guess, Metric metric,
+                        bool with_normals) {
+        context_.set_metric(metric);
+        Eigen::Matrix4d transform;
+        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
+            transform = with_normals && metric == Metric::PointToPlane
+                            ? align_with_normals(context_, source, *target_, guess)
+                            : sie::align(context_, source, *target_, guess);
+        } else {
+            (void)with_normals;
+            transform = sie::align(context_, source, *target_, guess);
+        }
+        summary_ = context_.summary();
+        return transform;
+    }
+
+    bool use_target_normals() const noexcept {
+        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
+            return use_target_normals_;
+        }
+        return false;
+    }
+
+    bool finite_normals() const {
+        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
+            for (const auto &p : target_->points) {
+                if (!std::isfinite(p.normal_x) || !std::isfinite(p.normal_y) || !std::isfinite(p.normal_z)) {
+                    return false;
+                }
+            }
+        }
+        return true;
+    }
+
+    // PCL's criteria map onto sie's two tolerances; untouched (sie's) when neither is set.
+    void apply_tolerances() {
+        const double epsilon = this->transformation_epsilon_;
+        const double rotation_cosine = this->transformation_rotation_epsilon_;
+        if (epsilon > 0.0 || rotation_cosine > 0.0) {
+            const auto angle = [](double cosine) { return std::acos(std::min(1.0, std::max(-1.0, cosine))); };
+            const double translation = epsilon > 0.0 ? std::sqrt(epsilon) : kSieTolerance;
+            const double rotation = rotation_cosine > 0.0 ? angle(rotation_cosine) : angle(1.0 - epsilon);
+            context_.set_convergence(translation, rotation);
+            tolerances_set_ = true;
+        } else if (tolerances_set_) {
+            context_.set_convergence(kSieTolerance, kSieTolerance);
+            tolerances_set_ = false;
+        }
+    }
+
+    // PCL's ICP passes the source moved by the current estimate and its correspondences.
+    void visualize(const PointCloudSource &source, const Eigen::Matrix4d &transform) {
+        PointCloudSource moved;
+        pcl::transformPointCloud(source, moved, transform.cast<float>());
+        pcl::Indices source_indices, target_indices;
+        source_indices.reserve(moved.size());
+        target_indices.reserve(moved.size());
+        pcl::Indices nearest(1);
+        std::vector<float> distance(1);
+        PointTarget query;
+        for (std::size_t i = 0; i < moved.size(); ++i) {
+            query.x = moved[i].x;
+            query.y = moved[i].y;
+            query.z = moved[i].z;
+            if (pcl::isFinite(moved[i]) && tree_->nearestKSearch(query, 1, nearest, distance) > 0) {
+                source_indices.push_back(static_cast<pcl::index_t>(i));
+                target_indices.push_back(nearest[0]);
+            }
+        }
+        update_visualizer_(moved, source_indices, *target_, target_indices);
+    }
+
+    // As PCL's ICP: the output is the (selected) source moved by the final transformation,
+    // normals rotated along when the type has them; other fields are copied.
+    void move_source(PointCloudSource &output, const Matrix4 &transform) const {
+        if constexpr (pcl::traits::has_normal_v<PointSource>) {
+            if (indices_->size() != input_->size()) {
+                pcl::transformPointCloudWithNormals(*input_, *indices_, output, transform);
+            } else {
+                pcl::transformPointCloudWithNormals(*input_, output, transform);
+            }
+        } else {
+            if (indices_->size() != input_->size()) {
+                pcl::transformPointCloud(*input_, *indices_, output, transform);
+            } else {
+                pcl::transformPointCloud(*input_, output, transform);
             }
         }
     }
 
+    static constexpr double kSieTolerance = 1e-6; // RegistrationConfig::default()'s tolerances
+
     Context context_;
-    typename PointCloudSource::ConstPtr source_;
-    typename PointCloudTarget::ConstPtr target_;
     bool use_target_normals_ = true;
-    Matrix4 final_transformation_ = Matrix4::Identity();
+    Metric metric_ = Metric::PointToPlane;
+    bool metric_fixed_ = false;
+    Metric metric_used_ = Metric::PointToPlane;
+    bool failure_after_max_iterations_ = false;
+    bool tolerances_set_ = false;
     Summary summary_{};
+    std::optional<Error> last_error_;
+
+  public:
+    PCL_MAKE_ALIGNED_OPERATOR_NEW
 };
 
 } // namespace sie

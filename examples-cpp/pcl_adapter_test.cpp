@@ -1,17 +1,21 @@
 // Tests of bindings/sie_pcl.hpp with real PCL types: the views point into the clouds' own
 // memory (no copy), caller-supplied PointNormal normals are what the library uses, Eigen
-// transforms convert in the right storage order, and PclRegistration behaves like PCL's
-// Registration interface. Built by examples-cpp (needs PCL), run by its ctest.
+// transforms convert in the right storage order, and PclRegistration is a pcl::Registration:
+// through a Registration::Ptr, with PCL's settings, visualisation callback, error conventions,
+// fitness score, and inside pcl::registration::IncrementalRegistration. Built by examples-cpp (needs PCL), run by its ctest.
 #include <sie_pcl.hpp>
 
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
+#include <pcl/registration/incremental_registration.h>
+#include <pcl/search/kdtree.h>
 
 #include <Eigen/Geometry>
 
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <string>
 
@@ -33,8 +37,9 @@ void check(bool ok, const char *what, int line) {
 constexpr double kPi = 3.14159265358979323846;
 
 // Floor, two walls and a slanted roof panel, sampled on a grid with exact normals.
-template <typename PointT> pcl::PointCloud<PointT> planes(const Eigen::Affine3d &pose) {
+template <typename PointT> pcl::PointCloud<PointT> planes(const Eigen::Affine3d &pose, double noise = 0.0) {
     pcl::PointCloud<PointT> cloud;
+    int k = 0;
     const Eigen::Vector3d roof_normal = Eigen::Vector3d(0.3, 0.4, 1.0).normalized();
     for (int i = 0; i < 30; ++i) {
         for (int j = 0; j < 30; ++j) {
@@ -46,7 +51,10 @@ template <typename PointT> pcl::PointCloud<PointT> planes(const Eigen::Affine3d 
                 {{0.5 + 0.3 * u, 0.5 + 0.3 * v, 1.2 - 0.09 * u - 0.12 * v}, roof_normal},
             };
             for (const auto &sample : samples) {
-                const Eigen::Vector3f p = (pose * sample[0]).cast<float>();
+                // Deterministic noise of amplitude `noise` per coordinate.
+                ++k;
+                const Eigen::Vector3d wobble(std::sin(12.9898 * k), std::sin(78.233 * k), std::sin(37.719 * k));
+                const Eigen::Vector3f p = (pose * (sample[0] + noise * wobble)).cast<float>();
                 const Eigen::Vector3f n = (pose.linear() * sample[1]).cast<float>();
                 PointT point;
                 point.x = p.x();
@@ -146,29 +154,196 @@ int main() {
         CHECK(error.status() == sie::Status::TooFewPoints);
     }
 
-    // pcl::Registration-style use, with a PointNormal target whose normals are used.
-    sie::PclRegistration<pcl::PointXYZ, pcl::PointNormal> registration;
-    registration.setInputSource(pcl::PointCloud<pcl::PointXYZ>::ConstPtr(new pcl::PointCloud<pcl::PointXYZ>(source)));
+    // ---- sie::PclRegistration: a pcl::Registration --------------------------------------------
+    const auto source_ptr = pcl::PointCloud<pcl::PointXYZ>::ConstPtr(new pcl::PointCloud<pcl::PointXYZ>(source));
+    const auto target_ptr = pcl::PointCloud<pcl::PointXYZ>::ConstPtr(new pcl::PointCloud<pcl::PointXYZ>(target));
+
+    // PointNormal clouds: the target's normals are used, the source's are rotated along.
+    sie::PclRegistration<pcl::PointNormal, pcl::PointNormal> registration;
+    registration.setInputSource(pcl::PointCloud<pcl::PointNormal>::ConstPtr(
+        new pcl::PointCloud<pcl::PointNormal>(planes<pcl::PointNormal>(truth.inverse()))));
     registration.setInputTarget(pcl::PointCloud<pcl::PointNormal>::ConstPtr(new pcl::PointCloud<pcl::PointNormal>(target_normals)));
-    pcl::PointCloud<pcl::PointXYZ> aligned;
-    registration.align(aligned);
+    pcl::PointCloud<pcl::PointNormal> aligned_normals;
+    registration.align(aligned_normals);
     CHECK(registration.hasConverged());
+    CHECK(registration.summary().stop_reason == sie::StopReason::Converged);
     const Eigen::Matrix4f final_transformation = registration.getFinalTransformation();
     CHECK(rotation_degrees(final_transformation.cast<double>(), truth.matrix()) < 0.05);
-    CHECK(aligned.size() == source.size());
-    // The output is the source moved by the result: close to the matching target point.
-    const Eigen::Vector3f moved = aligned.points[10].getVector3fMap();
+    CHECK(aligned_normals.size() == source.size());
+    // The output is the source moved by the result: close to the matching target point, its
+    // normal turned back to the target's.
+    const Eigen::Vector3f moved = aligned_normals.points[10].getVector3fMap();
     const Eigen::Vector3f expected = target.points[10].getVector3fMap();
     CHECK((moved - expected).norm() < 2e-3f);
+    CHECK((aligned_normals.points[10].getNormalVector3fMap() - target_normals.points[10].getNormalVector3fMap()).norm() <
+          2e-3f);
+    CHECK(registration.getClassName() == "sie::PclRegistration");
+    pcl::PointCloud<pcl::PointXYZ> aligned;
+
+    // Through pcl::Registration<...>::Ptr, as pipelines hold it: PCL's own align(), fitness
+    // score (mean squared nearest-neighbour distance) and final transformation.
+    sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ>::Ptr concrete(new sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ>);
+    pcl::Registration<pcl::PointXYZ, pcl::PointXYZ>::Ptr base = concrete;
+    base->setInputSource(source_ptr);
+    base->setInputTarget(target_ptr);
+    base->setMaxCorrespondenceDistance(0.05);                 // accepted, not used: no gate
+    base->setRANSACOutlierRejectionThreshold(0.05);
+    base->setSearchMethodTarget(pcl::search::KdTree<pcl::PointXYZ>::Ptr(new pcl::search::KdTree<pcl::PointXYZ>));
+    CHECK(base->getMaximumIterations() == 200);               // sie's default, not PCL's 10
+    base->align(aligned);
+    CHECK(base->hasConverged());
+    const Eigen::Matrix4d via_base = base->getFinalTransformation().cast<double>();
+    CHECK(rotation_degrees(via_base, truth.matrix()) < 0.05 && translation_distance(via_base, truth.matrix()) < 1e-3);
+    // The grid clouds are exact copies: the fitness is float rounding.
+    CHECK(base->getFitnessScore() < 1e-6);
+    const int iterations_default = static_cast<int>(concrete->summary().iterations);
+    const Eigen::Matrix4f increment = base->getLastIncrementalTransformation();
+    CHECK((increment - Eigen::Matrix4f::Identity()).cwiseAbs().maxCoeff() < 1e-4f);
+
+    // The visualisation callback, PCL's signature: first the inputs (at registration), then the
+    // source moved by each update's transform, with its nearest target points.
+    int updates = 0;
+    std::size_t first_size = 0, last_pairs = 0;
+    pcl::PointCloud<pcl::PointXYZ> last_shown;
+    std::function<void(const pcl::PointCloud<pcl::PointXYZ> &, const pcl::Indices &, const pcl::PointCloud<pcl::PointXYZ> &,
+                       const pcl::Indices &)>
+        viewer = [&](const pcl::PointCloud<pcl::PointXYZ> &cloud, const pcl::Indices &source_indices,
+                     const pcl::PointCloud<pcl::PointXYZ> &target_cloud, const pcl::Indices &target_indices) {
+            if (updates++ == 0) {
+                first_size = cloud.size();
+            }
+            last_shown = cloud;
+            last_pairs = source_indices.size();
+            CHECK(source_indices.size() == target_indices.size());
+            CHECK(target_cloud.size() == target.size());
+        };
+    CHECK(base->registerVisualizationCallback(viewer));
+    CHECK(updates == 1 && first_size == source.size());
+    base->align(aligned);
+    CHECK(updates == 1 + iterations_default);
+    CHECK(last_pairs == source.size());
+    // The last picture is the result.
+    CHECK((last_shown.points[10].getVector3fMap() - aligned.points[10].getVector3fMap()).norm() < 1e-5f);
+
+    // setMaximumIterations caps sie's updates; PCL calls reaching the cap converged, unless
+    // failure after the maximum is asked for, as in PCL's convergence criteria.
+    concrete->setMaximumIterations(3);
+    base->align(aligned);
+    CHECK(concrete->summary().iterations == 3);
+    CHECK(concrete->summary().stop_reason == sie::StopReason::IterationLimit);
+    CHECK(base->hasConverged());
+    concrete->setFailureAfterMaximumIterations(true);
+    base->align(aligned);
+    CHECK(!base->hasConverged());
+    concrete->setFailureAfterMaximumIterations(false);
+    concrete->setMaximumIterations(200);
+
+    // The convergence criteria act after SIE's annealing, where noisy data takes several updates.
+    base->setInputSource(pcl::PointCloud<pcl::PointXYZ>::ConstPtr(
+        new pcl::PointCloud<pcl::PointXYZ>(planes<pcl::PointXYZ>(truth.inverse(), 0.002))));
+    base->align(aligned);
+    const int iterations_noisy = static_cast<int>(concrete->summary().iterations);
+    CHECK(base->hasConverged() && concrete->summary().stop_reason == sie::StopReason::Converged);
+
+    // setTransformationEpsilon: PCL's squared-translation threshold; looser stops earlier.
+    base->setTransformationEpsilon(1e-4); // translation <= 1 cm, rotation <= acos(1 - 1e-4) = 0.8 deg
+    base->align(aligned);
+    CHECK(base->hasConverged());
+    CHECK(static_cast<int>(concrete->summary().iterations) < iterations_noisy);
+    CHECK(rotation_degrees(base->getFinalTransformation().cast<double>(), truth.matrix()) < 0.2);
+    // The last update is within PCL's criterion: squared translation <= epsilon.
+    const Eigen::Vector3f last_step = base->getLastIncrementalTransformation().topRightCorner<3, 1>();
+    CHECK(last_step.squaredNorm() <= 1e-4f);
+    base->setTransformationEpsilon(0.0);
+    base->align(aligned);
+    CHECK(static_cast<int>(concrete->summary().iterations) == iterations_noisy); // sie's tolerances again
+
+    // setEuclideanFitnessEpsilon: PCL's relative MSE change, after SIE's annealing. The stop is
+    // the caller's criterion: converged, with sie's stop reason "cancelled".
+    base->setEuclideanFitnessEpsilon(0.01);
+    base->align(aligned);
+    CHECK(base->hasConverged());
+    CHECK(concrete->summary().stop_reason == sie::StopReason::Cancelled);
+    CHECK(static_cast<int>(concrete->summary().iterations) < iterations_noisy);
+    base->setEuclideanFitnessEpsilon(-std::numeric_limits<double>::max());
+    base->setInputSource(source_ptr);
+
+    // setIndices: a subset of the source is registered, and the output is that subset.
+    pcl::IndicesPtr half(new pcl::Indices);
+    for (std::size_t i = 0; i < source.size(); i += 2) {
+        half->push_back(static_cast<pcl::index_t>(i));
+    }
+    base->setIndices(half);
+    base->align(aligned);
+    CHECK(base->hasConverged() && aligned.size() == half->size());
+    CHECK(concrete->summary().source_count == half->size());
+    CHECK(rotation_degrees(base->getFinalTransformation().cast<double>(), truth.matrix()) < 0.05);
+    base->setIndices(pcl::IndicesPtr());
+
+    // A non-dense cloud (NaN points, is_dense = false) is registered on its valid points, as PCL does.
+    pcl::PointCloud<pcl::PointXYZ>::Ptr holes(new pcl::PointCloud<pcl::PointXYZ>(source));
+    holes->points[3].x = std::numeric_limits<float>::quiet_NaN();
+    holes->is_dense = false;
+    base->setInputSource(holes);
+    base->align(aligned);
+    CHECK(base->hasConverged());
+    CHECK(rotation_degrees(base->getFinalTransformation().cast<double>(), truth.matrix()) < 0.05);
+
+    // PCL's error conventions: no exception, hasConverged() false, the guess kept.
+    pcl::PointCloud<pcl::PointXYZ>::Ptr two(new pcl::PointCloud<pcl::PointXYZ>);
+    two->push_back(pcl::PointXYZ(0.f, 0.f, 0.f));
+    two->push_back(pcl::PointXYZ(1.f, 0.f, 0.f));
+    Eigen::Matrix4f guess = Eigen::Matrix4f::Identity();
+    guess(0, 3) = 0.25f;
+    base->setInputSource(two);
+    base->align(aligned, guess);
+    CHECK(!base->hasConverged());
+    CHECK(base->getFinalTransformation() == guess);
+    CHECK(concrete->lastError().has_value() && concrete->lastError()->status() == sie::Status::TooFewPoints);
+    CHECK(aligned.size() == 2 && aligned.points[1].x == 1.25f);
 
     pcl::PointCloud<pcl::PointXYZ> never_aligned;
     sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> unconfigured;
-    try {
-        unconfigured.align(never_aligned);
-        CHECK(false);
-    } catch (const sie::Error &error) {
-        CHECK(error.status() == sie::Status::NullArgument);
+    unconfigured.align(never_aligned); // PCL_ERROR: no target; returns
+    CHECK(!unconfigured.hasConverged() && never_aligned.empty());
+
+    // The tutorial's case: five points shifted 0.7 along x. Point-to-plane has one plane fit
+    // for all five, no unique solution; the registration reruns point-to-point.
+    pcl::PointCloud<pcl::PointXYZ>::Ptr five(new pcl::PointCloud<pcl::PointXYZ>(5, 1));
+    const float coordinates[5][3] = {{12.f, 800.f, 410.f}, {300.f, 45.f, 990.f}, {640.f, 512.f, 3.f},
+                                     {901.f, 220.f, 600.f}, {77.f, 1000.f, 150.f}};
+    for (int i = 0; i < 5; ++i) {
+        (*five)[i] = pcl::PointXYZ(coordinates[i][0], coordinates[i][1], coordinates[i][2]);
     }
+    pcl::PointCloud<pcl::PointXYZ>::Ptr shifted(new pcl::PointCloud<pcl::PointXYZ>(*five));
+    for (auto &p : *shifted) {
+        p.x += 0.7f;
+    }
+    sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> tutorial;
+    tutorial.setInputSource(five);
+    tutorial.setInputTarget(shifted);
+    tutorial.align(aligned);
+    CHECK(tutorial.hasConverged());
+    CHECK(tutorial.getMetricUsed() == sie::Metric::PointToPoint);
+    CHECK(std::abs(tutorial.getFinalTransformation()(0, 3) - 0.7f) < 1e-3f);
+    CHECK(tutorial.getFitnessScore() < 1e-6);
+
+    // In a PCL pipeline that takes a Registration::Ptr: IncrementalRegistration chains three
+    // clouds (poses 0, A, A*B) and accumulates the absolute transform.
+    const Eigen::Affine3d step_a = Eigen::Translation3d(0.02, 0.01, -0.01) * Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitZ());
+    const Eigen::Affine3d step_b = Eigen::Translation3d(-0.01, 0.02, 0.0) * Eigen::AngleAxisd(0.04, Eigen::Vector3d::UnitX());
+    pcl::registration::IncrementalRegistration<pcl::PointXYZ> incremental;
+    incremental.setRegistration(concrete);
+    bool chained = true;
+    for (const Eigen::Affine3d &pose : {Eigen::Affine3d::Identity(), step_a, Eigen::Affine3d(step_a * step_b)}) {
+        // Cloud k in its own frame: p_k = pose⁻¹ p_0, so T_0_k = pose.
+        chained = incremental.registerCloud(pcl::PointCloud<pcl::PointXYZ>::ConstPtr(
+                      new pcl::PointCloud<pcl::PointXYZ>(planes<pcl::PointXYZ>(pose.inverse())))) && chained;
+    }
+    CHECK(chained);
+    const Eigen::Matrix4d absolute = incremental.getAbsoluteTransform().cast<double>();
+    CHECK(rotation_degrees(absolute, (step_a * step_b).matrix()) < 0.05);
+    CHECK(translation_distance(absolute, (step_a * step_b).matrix()) < 1e-3);
 
     std::printf("sie_pcl.hpp: %d checks, %d failed\n", checks, failures);
     return failures == 0 ? 0 : 1;

@@ -335,7 +335,8 @@ typedef struct sie_trace_entry {
     double beta;
     double penalty;
     /**
-     * Mean inlier probability over this iteration's correspondences.
+     * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
+     * 0), over the source points this iteration matched, with this update's weights.
      */
     double inlier_fraction;
     /**
@@ -356,11 +357,18 @@ typedef struct sie_trace_entry {
      * True while beta is being annealed, false in the final round.
      */
     bool annealing;
+    /**
+     * T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
+     * viewer can move the source cloud with it every iteration.
+     */
+    double transform[16];
 } sie_trace_entry;
 
 /**
  * Progress callback: called after every iteration of a registration with that iteration's
- * trace entry (valid only during the call), synchronously on the registering thread. Return 0
+ * trace entry (valid only during the call; `entry->transform` is the transform the update
+ * reached, for a viewer that animates the registration), synchronously on the registering
+ * thread. Return 0
  * to continue; any other value cancels the registration, which then returns
  * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
  * on the same context from inside it return `SIE_STATUS_BUSY`.
@@ -899,9 +907,10 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
  * must hold that many (`models_capacity`), else BUFFER_TOO_SMALL; `out_model_count` (nullable)
  * receives the number of histograms.
  *
- * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
- * bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
- * overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY.
+ * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
+ * fit), INVALID_ARGUMENT (cols is 0, bad scale or beta, or a scaled residual above 1e140 in
+ * magnitude, whose square would overflow in the fit), NON_FINITE_INPUT (names the index),
+ * BUFFER_TOO_SMALL, BUSY.
  *
  * # Safety
  * `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # The integration half of the test suite (called by scripts/test-all.sh): builds libsie with
 # CMake, runs the C and C++ ABI tests with ctest (both also under valgrind), installs into
-# a staging prefix, builds a separate consumer project and examples-cpp against that install
-# (find_package + pkg-config), runs the PCL comparison on the bunny and LiDAR pairs with the
-# accuracy checks, and runs the Python binding's pytest suite.
+# a staging prefix (library, headers, bin/sie), builds a separate consumer project and
+# examples-cpp against that install (find_package + pkg-config), runs the PCL comparison on the
+# bunny and LiDAR pairs with the accuracy checks, PCL's ICP tutorial and a pcl_icp-style tool
+# built with sie::PclRegistration, loads `sie --aligned` output with PCL, and for Python: pip
+# builds libsie into the package, the pytest suite (with Open3D and a Dask LocalCluster), a
+# wheel installed into a clean venv without Rust, and the Open3D example.
 #
 # Everything is built under build/ci (override with SIE_INTEGRATION_BUILD). The closing line is
 # "integration: N passed, M failed" (ctest and pytest counts plus one per other step); the exit
@@ -101,6 +104,7 @@ check_soname() {
     [ "$(readlink "$prefix/lib/libsie.so")" = libsie.so.0.1 ] && [ -f "$prefix/lib/libsie.a" ]
 }
 step "versioned soname and links" check_soname
+step "install: bin/sie (the CLI)" "$prefix/bin/sie" --version
 
 # ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
 step "consumer: configure with find_package(sie 0.1)" \
@@ -144,10 +148,51 @@ if [ -f "$data/pcl-test-bunny/bun0.pcd" ]; then
   step "compare_pcl: bun0 -> bun4 (1 deg, 5 mm)" bunny_default
   step "pcl_drop_in: the README's PCL snippets on bun0 -> bun4" \
     "$build/examples/pcl_drop_in" "$data/pcl-test-bunny/bun0.pcd" "$data/pcl-test-bunny/bun4.pcd"
+  # sie --aligned writes float32 x y z, which pcl::io::loadPCDFile<pcl::PointXYZ> reads (binary
+  # and ascii); pcd_check compares every point with T * source, T from the same run's -o.
+  aligned_pcd_read_by_pcl() {
+    local encoding=$1
+    shift
+    "$prefix/bin/sie" register "$data/pcl-test-bunny/bun0.pcd" "$data/pcl-test-bunny/bun4.pcd" -q \
+      --aligned "$build/aligned_$encoding.pcd" -o "$build/aligned_T.txt" "$@" >/dev/null &&
+      grep -aq "^DATA $encoding" "$build/aligned_$encoding.pcd" &&
+      "$build/examples/pcd_check" "$build/aligned_$encoding.pcd" "$data/pcl-test-bunny/bun0.pcd" \
+        "$build/aligned_T.txt" 1e-5
+  }
+  step "sie --aligned out.pcd (binary) read by pcl::io::loadPCDFile<PointXYZ>" aligned_pcd_read_by_pcl binary
+  step "sie --aligned out.pcd --aligned-ascii read by PCL" aligned_pcd_read_by_pcl ascii --aligned-ascii
+  # pcl_icp-style tool, only the type name changed: bun0 onto bun4, its .tf.pcd checked against
+  # the bun.conf ground truth (pcl-test-bunny/README.md) within 3 mm per point.
+  pcl_icp_tool() {
+    rm -rf "$build/icp" && mkdir -p "$build/icp" &&
+      cp "$data/pcl-test-bunny/bun4.pcd" "$data/pcl-test-bunny/bun0.pcd" "$build/icp/" &&
+      printf '%s\n' ' 0.826351  0.004137 -0.563141  0.036838' '-0.0106    0.99991  -0.00821  -0.000257' \
+        ' 0.563056  0.012754  0.82632   0.038321' >"$build/icp/bun0_to_bun4.txt" &&
+      "$build/examples/pcl_icp_tool_sie" "$build/icp/bun4.pcd" "$build/icp/bun0.pcd" &&
+      "$build/examples/pcd_check" "$build/icp/bun0.tf.pcd" "$build/icp/bun0.pcd" "$build/icp/bun0_to_bun4.txt" 0.003
+  }
+  step "pcl_icp_tool_sie (pcl_icp-style, sie::PclRegistration): bun0 -> bun4 within 3 mm" pcl_icp_tool
 else
-  echo ">> skipped: compare_pcl on the bunny ($data/pcl-test-bunny not present)"
-  skipped=$((skipped + 1))
+  echo ">> skipped: compare_pcl, --aligned read by PCL, pcl_icp_tool on the bunny ($data/pcl-test-bunny not present)"
+  skipped=$((skipped + 3))
 fi
+
+# PCL's ICP tutorial program with sie::PclRegistration: the generated sources differ from the
+# PCL originals in the type name only, and the tutorial converges onto the 0.7 shift.
+only_type_name_changed() {
+  local program
+  for program in pcl_tutorial_icp pcl_icp_tool; do
+    diff <(sed 's/pcl::IterativeClosestPoint/sie::PclRegistration/g' "examples-cpp/$program.cpp") \
+      <(tail -n +2 "$build/examples/${program}_sie.cpp") || return 1
+  done
+}
+step "PCL programs: only the type name changed" only_type_name_changed
+pcl_tutorial() {
+  "$build/examples/pcl_tutorial_icp_sie" | tee "$build/pcl_tutorial.txt" &&
+    awk '/^has converged:1 score: / { ok = $NF < 1e-6; getline; tx = $4 }
+         END { exit !(ok && tx > 0.699 && tx < 0.701) }' "$build/pcl_tutorial.txt"
+}
+step "PCL's ICP tutorial with sie::PclRegistration: converged, score < 1e-6, x shift 0.7" pcl_tutorial
 if [ -f "$data/small_gicp-data/source.ply" ]; then
   step "compare_pcl: LiDAR pair (0.5 deg, 5 cm)" compare compare_lidar.txt \
     "$data/small_gicp-data/source.ply" "$data/small_gicp-data/target.ply" \
@@ -157,17 +202,75 @@ else
   skipped=$((skipped + 1))
 fi
 
-# ---- Python: install the package into a venv and run its tests -----------------------------------
+# ---- Python: pip builds libsie into the package; wheel into a clean venv; Open3D, Dask -------------
+version=$(sed -n 's/^version = "\([0-9.]*\)"/\1/p' Cargo.toml | head -1)
+venv=$build/venv
 python_setup() {
-  [ -x "$build/venv/bin/python" ] || python3 -m venv "$build/venv" || return 1
-  "$build/venv/bin/pip" install -q --disable-pip-version-check numpy pytest || return 1
-  # A copy, so that setuptools' build/ and egg-info stay out of the source tree.
-  rm -rf "$build/python-src" && cp -r bindings/python "$build/python-src" &&
-    "$build/venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps "$build/python-src"
+  [ -x "$venv/bin/python" ] || python3 -m venv "$venv" || return 1
+  # Test tools and the optional libraries the tests and examples use (Open3D's CPU-only wheel,
+  # small_gicp, dask.distributed); pinned to the versions measured in the README.
+  # mypy: a test checks the package's type hints from a user's side.
+  "$venv/bin/pip" install -q --disable-pip-version-check pytest mypy "open3d-cpu==0.20.0" "small_gicp==1.0.1" \
+    "dask[distributed]==2026.8.0" || return 1
+  # The README's command. setup.py runs cargo; CMake's cargo target directory is reused, so
+  # this compiles nothing new (a fresh clone without it compiles the library here).
+  CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" install -q --disable-pip-version-check \
+    --force-reinstall ./bindings/python || return 1
+  # Captured first: with pipefail, grep -q closing the pipe early would fail the producer.
+  local shown
+  shown=$("$venv/bin/pip" show sie) && grep -qx "Version: $version" <<<"$shown"
 }
-step "python: venv and pip install ./bindings/python" python_setup
-counted "pytest: bindings/python" env SIE_LIBRARY="$prefix/lib/libsie.so.0.1" SIE_DATA_DIR="$data" \
-  "$build/venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
+step "python: pip install ./bindings/python (cargo builds libsie into the package)" python_setup
+# No SIE_LIBRARY: the library inside the installed package is the one loaded (checked by the
+# suite with SIE_EXPECT_BUNDLED). Open3D, small_gicp and dask must be there (SIE_REQUIRE_OPTIONAL).
+counted "pytest: bindings/python (binding, Open3D, Dask LocalCluster)" \
+  env -u SIE_LIBRARY SIE_EXPECT_BUNDLED=1 SIE_REQUIRE_OPTIONAL=1 SIE_DATA_DIR="$data" \
+  "$venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
+
+# pip wheel gives a py3-none-<platform> wheel carrying the library, versioned with it, which
+# installs and registers in a clean venv on a PATH without cargo or a compiler.
+wheel_in_clean_venv() {
+  rm -rf "$build/wheelhouse" "$build/clean-venv" "$build/clean-home" && mkdir -p "$build/clean-home" &&
+    CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps \
+      -w "$build/wheelhouse" ./bindings/python || return 1
+  local wheel
+  wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-linux_*.whl) || return 1
+  local contents
+  contents=$("$venv/bin/python" -m zipfile -l "$wheel") &&
+    grep -q 'sie/libsie.so.0.1 ' <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents" || return 1
+  python3 -m venv "$build/clean-venv" || return 1
+  # No Rust, no compiler, no repository: a bare PATH, an empty HOME (no ~/.cargo), another cwd.
+  (
+    cd "$build/clean-home" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" sh -c '! command -v cargo && ! command -v rustc' &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/pip" install -q \
+        --disable-pip-version-check "$wheel" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/python" -c '
+import pathlib, numpy as np, sie
+assert pathlib.Path(sie._lib._name).parent == pathlib.Path(sie.__file__).parent, sie._lib._name
+rng = np.random.default_rng(1)
+target = rng.uniform(-1, 1, (2000, 3)) * [2, 2, 0.3]
+c, s = np.cos(0.05), np.sin(0.05)
+truth = np.array([[c, -s, 0, 0.05], [s, c, 0, -0.02], [0, 0, 1, 0.01], [0, 0, 0, 1]])
+source = (target - truth[:3, 3]) @ truth[:3, :3] + rng.normal(0, 0.002, target.shape)
+result = sie.align(source, target, metric=sie.Metric.POINT_TO_POINT)
+error = np.abs(result.transform - truth).max()
+print(f"clean venv: sie {sie.__version__} from {sie._lib._name}: {result.summary.stop_reason}, error {error:.1e}")
+assert result.summary.converged and error < 1e-3
+'
+  )
+}
+step "python: pip wheel -> clean venv without Rust: installs, imports, registers" wheel_in_clean_venv
+
+# The examples as a newcomer runs them (small work): sie vs Open3D vs small_gicp on the bunny,
+# and the Dask example on two LocalCluster worker processes.
+if [ -f "$data/pcl-test-bunny/bun0.pcd" ]; then
+  step "python example: sie, Open3D and small_gicp on bun0 -> bun4" \
+    "$venv/bin/python" bindings/python/examples/compare_open3d_small_gicp.py --pair bunny --data "$data"
+else
+  echo ">> skipped: the Open3D example ($data/pcl-test-bunny not present)"
+  skipped=$((skipped + 1))
+fi
 
 if [ ${#failures[@]} -gt 0 ]; then
   printf ">> failed: %s\n" "${failures[@]}"

@@ -109,8 +109,26 @@ pub fn write_cloud_xyz(path: &Path, points: &[Point]) -> Result<(), String> {
     })
 }
 
-/// Writes an ascii PCD v0.7 with double-precision `x y z` and, when given, `normal_x/y/z`.
-pub fn write_cloud_pcd_ascii(path: &Path, points: &[Point], normals: Option<&[Point]>) -> Result<(), String> {
+/// How [`write_cloud_pcd`] stores the points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PcdEncoding {
+    /// `DATA binary`: little-endian float32 records (PCL's default for saved clouds; compact
+    /// and exact for float32).
+    Binary,
+    /// `DATA ascii`: one line per point, each float32 value printed so it reads back exactly.
+    Ascii,
+}
+
+/// Writes a PCD v0.7 with float32 `x y z` and, when given, `normal_x normal_y normal_z`:
+/// PCL's own field layout (`SIZE 4`, `TYPE F`), which `pcl::io::loadPCDFile<pcl::PointXYZ>`
+/// (or `<pcl::PointNormal>`) matches. Values are rounded to float32, as PCL stores them; a
+/// value beyond float32's range is an error rather than an infinity in the file.
+pub fn write_cloud_pcd(
+    path: &Path,
+    points: &[Point],
+    normals: Option<&[Point]>,
+    encoding: PcdEncoding,
+) -> Result<(), String> {
     if let Some(normals) = normals.filter(|n| n.len() != points.len()) {
         return Err(format!(
             "{}: {} normals for {} points",
@@ -119,28 +137,58 @@ pub fn write_cloud_pcd_ascii(path: &Path, points: &[Point], normals: Option<&[Po
             points.len()
         ));
     }
+    let per_point = if normals.is_some() { 6 } else { 3 };
+    let mut values = Vec::with_capacity(points.len() * per_point);
+    for (i, p) in points.iter().enumerate() {
+        values.extend(p.iter().map(|&v| v as f32));
+        if let Some(n) = normals.map(|n| n[i]) {
+            values.extend(n.iter().map(|&v| v as f32));
+        }
+        if let Some(k) = values[values.len() - per_point..]
+            .iter()
+            .position(|v| !v.is_finite())
+        {
+            return Err(format!(
+                "{}: point {i} has a value ({}) that float32 cannot hold",
+                path.display(),
+                if k < 3 {
+                    p[k]
+                } else {
+                    normals.map_or(0.0, |n| n[i][k - 3])
+                }
+            ));
+        }
+    }
     write_text(path, |out| {
-        let (fields, per_point) = match normals {
-            Some(_) => ("x y z normal_x normal_y normal_z", 6),
-            None => ("x y z", 3),
+        let fields = if normals.is_some() {
+            "x y z normal_x normal_y normal_z"
+        } else {
+            "x y z"
         };
         writeln!(out, "# .PCD v0.7 - Point Cloud Data file format")?;
         writeln!(out, "VERSION 0.7")?;
         writeln!(out, "FIELDS {fields}")?;
-        writeln!(out, "SIZE{}", " 8".repeat(per_point))?;
+        writeln!(out, "SIZE{}", " 4".repeat(per_point))?;
         writeln!(out, "TYPE{}", " F".repeat(per_point))?;
         writeln!(out, "COUNT{}", " 1".repeat(per_point))?;
         writeln!(out, "WIDTH {}", points.len())?;
         writeln!(out, "HEIGHT 1")?;
         writeln!(out, "VIEWPOINT 0 0 0 1 0 0 0")?;
         writeln!(out, "POINTS {}", points.len())?;
-        writeln!(out, "DATA ascii")?;
-        for (i, p) in points.iter().enumerate() {
-            write!(out, "{} {} {}", p[0], p[1], p[2])?;
-            if let Some(n) = normals.map(|n| n[i]) {
-                write!(out, " {} {} {}", n[0], n[1], n[2])?;
+        match encoding {
+            PcdEncoding::Binary => {
+                writeln!(out, "DATA binary")?;
+                for v in &values {
+                    out.write_all(&v.to_le_bytes())?;
+                }
             }
-            writeln!(out)?;
+            PcdEncoding::Ascii => {
+                writeln!(out, "DATA ascii")?;
+                for record in values.chunks_exact(per_point) {
+                    let line: Vec<String> = record.iter().map(f32::to_string).collect();
+                    writeln!(out, "{}", line.join(" "))?;
+                }
+            }
         }
         Ok(())
     })
@@ -910,13 +958,38 @@ mod tests {
         write_cloud_xyz(&xyz, &points).unwrap();
         assert_eq!(read_cloud(&xyz).unwrap().points, points);
 
+        // PCD holds float32, as PCL does: exact for values that are float32 already.
+        let as_f32 = |values: &[Point]| -> Vec<Point> {
+            values.iter().map(|p| p.map(|v| f64::from(v as f32))).collect()
+        };
         let pcd = temp_path("round.pcd");
-        write_cloud_pcd_ascii(&pcd, &points, Some(&normals)).unwrap();
-        let cloud = read_cloud(&pcd).unwrap();
-        assert_eq!((cloud.points, cloud.normals), (points.clone(), Some(normals)));
-        write_cloud_pcd_ascii(&pcd, &points, None).unwrap();
-        assert_eq!(read_cloud(&pcd).unwrap().normals, None);
-        assert!(write_cloud_pcd_ascii(&pcd, &points, Some(&points[..3])).is_err());
+        for encoding in [PcdEncoding::Binary, PcdEncoding::Ascii] {
+            write_cloud_pcd(&pcd, &points, Some(&normals), encoding).unwrap();
+            let cloud = read_cloud(&pcd).unwrap();
+            assert_eq!(
+                (cloud.points, cloud.normals),
+                (as_f32(&points), Some(as_f32(&normals)))
+            );
+            write_cloud_pcd(&pcd, &points, None, encoding).unwrap();
+            assert_eq!(read_cloud(&pcd).unwrap().normals, None);
+            let text = fs::read(&pcd).unwrap();
+            let header = String::from_utf8_lossy(&text[..200]);
+            assert!(header.contains("SIZE 4 4 4\nTYPE F F F\n"), "{header}");
+        }
+        let bytes = fs::read(&pcd).unwrap();
+        assert!(String::from_utf8_lossy(&bytes).contains("DATA ascii\n"));
+        write_cloud_pcd(&pcd, &points, None, PcdEncoding::Binary).unwrap();
+        let bytes = fs::read(&pcd).unwrap();
+        let data = bytes.windows(12).position(|w| w == b"DATA binary\n").unwrap() + 12;
+        assert_eq!(bytes.len() - data, points.len() * 12);
+        assert_eq!(
+            f32::from_le_bytes(bytes[data..data + 4].try_into().unwrap()),
+            points[0][0] as f32
+        );
+        assert!(write_cloud_pcd(&pcd, &points, Some(&points[..3]), PcdEncoding::Binary).is_err());
+        let huge = [[1e39, 0.0, 0.0]];
+        let error = write_cloud_pcd(&pcd, &huge, None, PcdEncoding::Binary).unwrap_err();
+        assert!(error.contains("float32"), "{error}");
         for path in [xyz, pcd] {
             fs::remove_file(path).unwrap();
         }

@@ -253,8 +253,18 @@ fn trace_prints_one_row_per_iteration() {
         "-q",
     ]);
     let report = json(&output);
-    assert_eq!(report["trace"].as_array().unwrap().len(), rows.len());
+    let trace = report["trace"].as_array().unwrap();
+    assert_eq!(trace.len(), rows.len());
     assert_eq!(report["iterations"].as_u64().unwrap() as usize, rows.len());
+    // One meaning of "inlier fraction": the converged run's last update and the summary agree.
+    let last = trace.last().unwrap();
+    let (progress, summary) = (
+        last["inlier_fraction"].as_f64().unwrap(),
+        report["inlier_fraction"].as_f64().unwrap(),
+    );
+    assert!((progress - summary).abs() < 0.01, "{progress} vs {summary}");
+    // Each row carries the transform the update reached; the last one is the result.
+    assert_eq!(last["transform"], report["transform"]);
 }
 
 /// Width and height from a PNG's IHDR chunk.
@@ -322,6 +332,38 @@ fn aligned_cloud_is_the_source_moved_by_the_result() {
             (0..3).all(|k| (expected[k] - q[k]).abs() < 1e-8),
             "{expected:?} {q:?}"
         );
+    }
+
+    // .pcd: float32 x y z, as PCL writes and reads them (pcl::PointXYZ matches only float
+    // fields); binary unless --aligned-ascii. CI also loads it with PCL (examples-cpp).
+    for (extra, data_line) in [(None, "DATA binary"), (Some("--aligned-ascii"), "DATA ascii")] {
+        let pcd = dir.join("aligned.pcd");
+        let mut args = vec![
+            "register",
+            arg(&b.source),
+            arg(&b.target),
+            "--aligned",
+            arg(&pcd),
+            "-q",
+        ];
+        args.extend(extra);
+        let output = sie(&args);
+        assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+        let bytes = fs::read(&pcd).unwrap();
+        let header = text(&bytes[..bytes.len().min(300)]);
+        // bun0.pcd has normals: they are written too, rotated.
+        for line in ["FIELDS x y z normal_x", "SIZE 4 4 4 4", "TYPE F F F F", data_line] {
+            assert!(header.contains(line), "{line:?} missing: {header}");
+        }
+        let moved = read_cloud(&pcd).unwrap().points;
+        assert_eq!(moved.len(), source.len());
+        for (p, q) in source.iter().zip(&moved) {
+            let expected = transform_point(&transform, p).map(|v| f64::from(v as f32));
+            assert!(
+                (0..3).all(|k| (expected[k] - q[k]).abs() < 1e-7),
+                "{expected:?} {q:?}"
+            );
+        }
     }
 }
 
@@ -594,7 +636,7 @@ fn bad_options_give_one_line_and_exit_code_2() {
     let not_rigid = dir.join("scaled.txt");
     fs::write(&not_rigid, "2 0 0 0\n0 1 0 0\n0 0 1 0\n").unwrap();
     let c = arg(&cloud);
-    let cases: [(Vec<&str>, &str); 7] = [
+    let cases: [(Vec<&str>, &str); 9] = [
         (vec!["--cost", "cauchy"], "needs --cost-param"),
         (vec!["--cost-param", "1"], "takes no --cost-param"),
         (vec!["--plot", "fig.jpg"], ".png or .svg"),
@@ -602,6 +644,12 @@ fn bad_options_give_one_line_and_exit_code_2() {
         (vec!["--aligned", "out.ply"], ".pcd, .xyz or .txt"),
         (vec!["-o", "/no/such/folder/T.txt"], "does not exist"),
         (vec!["--init", arg(&not_rigid)], "initial guess"),
+        // PCL users' habit: answered, not hinted towards the sampling cap.
+        (
+            vec!["--max-correspondence-distance", "0.05"],
+            "no correspondence distance gate",
+        ),
+        (vec!["--max-distance=1"], "no correspondence distance gate"),
     ];
     for (extra, expected) in cases {
         let mut args = vec!["register", c, c];
@@ -618,6 +666,9 @@ fn bad_options_give_one_line_and_exit_code_2() {
     // clap's own usage errors use the same code.
     let output = sie(&["register", c, c, "--init-pose", "1", "2", "3"]);
     assert_eq!(output.status.code(), Some(2));
+    let output = sie(&["register", c, c, "--aligned-ascii"]);
+    assert_eq!(output.status.code(), Some(2));
+    assert!(text(&output.stderr).contains("--aligned <FILE>"));
     let help = text(&sie(&["register", "--help"]).stdout);
     assert!(help.contains("Exit codes") && help.contains("Rz(YAW)"), "{help}");
 }

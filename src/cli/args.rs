@@ -10,6 +10,13 @@ use sie::{CostFunction, HistogramMode, Metric, NoiseModel, NoiseShape, Registrat
 
 use super::{CliError, EXIT_CODES_HELP};
 
+/// What `--max-correspondence-distance` (and its usual spellings) gets: ICP libraries need a
+/// gate, sie does not have one, and the similarly named option is something else.
+pub const DISTANCE_GATE_ANSWER: &str = "--max-correspondence-distance: sie has no \
+correspondence distance gate, so there is nothing to set. SIE decides from each iteration's \
+residual histogram which matches are inliers; drop the option. (--max-correspondences N is \
+unrelated: it samples N source points per iteration.)";
+
 /// Student-t degrees of freedom when `--cost-param` is not given (Kerl et al. 2013, as the C API).
 const DEFAULT_STUDENT_T_DOF: f64 = 5.0;
 
@@ -112,9 +119,22 @@ pub struct RegisterArgs {
     #[arg(long, value_name = "RAD", default_value_t = defaults().rotation_tolerance, help_heading = "Start and stop")]
     pub rotation_tolerance: f64,
 
-    /// Use at most N randomly chosen source points per iteration (0 = all).
+    /// Use at most N randomly chosen source points per iteration (0 = all). A sampling cap, not
+    /// a distance gate: sie has none.
     #[arg(long, value_name = "N", default_value_t = defaults().max_correspondences, help_heading = "Data")]
     pub max_correspondences: usize,
+    /// Not an option of sie: PCL's correspondence distance gate, accepted only to answer it with
+    /// DISTANCE_GATE_ANSWER.
+    #[arg(
+        long,
+        value_name = "DIST",
+        hide = true,
+        alias = "max-distance",
+        alias = "max-corr-dist",
+        alias = "distance-threshold",
+        allow_negative_numbers = true
+    )]
+    pub max_correspondence_distance: Option<String>,
     /// Neighbours for the target normals of point-to-plane (3..=1000).
     #[arg(long, value_name = "K", default_value_t = defaults().normal_neighbours, help_heading = "Data")]
     pub normal_neighbours: usize,
@@ -142,9 +162,14 @@ pub struct RegisterArgs {
     /// error of the result.
     #[arg(long, value_name = "FILE", help_heading = "Output")]
     pub ground_truth: Option<PathBuf>,
-    /// Write the source cloud moved into the target frame (.pcd ascii or .xyz/.txt).
+    /// Write the source cloud moved into the target frame: .pcd (float32 x y z, and normals when
+    /// the source file has them, binary like PCL's own files; pcl::io::loadPCDFile reads it) or
+    /// .xyz/.txt (full precision).
     #[arg(long, value_name = "FILE", help_heading = "Output")]
     pub aligned: Option<PathBuf>,
+    /// Write the --aligned .pcd as ascii instead of binary.
+    #[arg(long, requires = "aligned", help_heading = "Output")]
+    pub aligned_ascii: bool,
     /// Draw the final residual histogram, the fitted inlier model and P(inlier | r) (.png or .svg).
     #[arg(long, value_name = "FILE", help_heading = "Output")]
     pub plot: Option<PathBuf>,
@@ -275,6 +300,9 @@ impl CostArg {
 impl RegisterArgs {
     /// The registration settings these arguments ask for, validated by the library.
     pub fn config(&self) -> Result<RegistrationConfig, CliError> {
+        if self.max_correspondence_distance.is_some() {
+            return Err(CliError::new(DISTANCE_GATE_ANSWER));
+        }
         let mut config = RegistrationConfig {
             cost: self.cost.cost_function(self.cost_param)?,
             metric: self.metric.into(),

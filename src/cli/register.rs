@@ -10,7 +10,7 @@ use std::time::Instant;
 use nalgebra::Matrix4;
 use sie::geometry::{rotation_part, transform_point, vector};
 use sie::io::{
-    CloudFile, NonFinite, read_cloud_with, read_transform, write_cloud_pcd_ascii, write_cloud_xyz,
+    CloudFile, NonFinite, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz,
 };
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
@@ -141,7 +141,12 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         record(path, outcome);
     }
     if let Some(path) = &args.aligned {
-        record(path, write_aligned(path, &source, &result.transform));
+        let encoding = if args.aligned_ascii {
+            PcdEncoding::Ascii
+        } else {
+            PcdEncoding::Binary
+        };
+        record(path, write_aligned(path, &source, &result.transform, encoding));
     }
     if let Some(path) = &args.plot {
         let text = plot_text(args, &config, &result);
@@ -347,7 +352,12 @@ fn plot_text(
 }
 
 /// Writes the source cloud moved into the target frame, normals rotated along.
-fn write_aligned(path: &Path, source: &CloudFile, t: &Matrix4<f64>) -> Result<(), String> {
+fn write_aligned(
+    path: &Path,
+    source: &CloudFile,
+    t: &Matrix4<f64>,
+    encoding: PcdEncoding,
+) -> Result<(), String> {
     let points: Vec<Point> = source.points.iter().map(|p| transform_point(t, p)).collect();
     match CloudFormat::of(path).map_err(|e| e.0)? {
         CloudFormat::Xyz => write_cloud_xyz(path, &points),
@@ -362,7 +372,7 @@ fn write_aligned(path: &Path, source: &CloudFile, t: &Matrix4<f64>) -> Result<()
                     })
                     .collect()
             });
-            write_cloud_pcd_ascii(path, &points, normals.as_deref())
+            write_cloud_pcd(path, &points, normals.as_deref(), encoding)
         }
     }
 }

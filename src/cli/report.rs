@@ -85,6 +85,8 @@ pub struct TraceRow {
     pub translation_change: f64,
     pub rotation_change: f64,
     pub correspondences: usize,
+    /// T_target_source reached by this update, row-major like `transform` of the report.
+    pub transform: [[f64; 4]; 4],
 }
 
 impl From<&TraceEntry> for TraceRow {
@@ -100,6 +102,7 @@ impl From<&TraceEntry> for TraceRow {
             translation_change: e.translation_change,
             rotation_change: e.rotation_change,
             correspondences: e.correspondences,
+            transform: transform_rows(&e.transform),
         }
     }
 }

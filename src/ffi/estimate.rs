@@ -36,9 +36,10 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
 /// must hold that many (`models_capacity`), else BUFFER_TOO_SMALL; `out_model_count` (nullable)
 /// receives the number of histograms.
 ///
-/// Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
-/// bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
-/// overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY.
+/// Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
+/// fit), INVALID_ARGUMENT (cols is 0, bad scale or beta, or a scaled residual above 1e140 in
+/// magnitude, whose square would overflow in the fit), NON_FINITE_INPUT (names the index),
+/// BUFFER_TOO_SMALL, BUSY.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

@@ -170,7 +170,9 @@ pub type sie_noise_fn = Option<
 >;
 
 /// Progress callback: called after every iteration of a registration with that iteration's
-/// trace entry (valid only during the call), synchronously on the registering thread. Return 0
+/// trace entry (valid only during the call; `entry->transform` is the transform the update
+/// reached, for a viewer that animates the registration), synchronously on the registering
+/// thread. Return 0
 /// to continue; any other value cancels the registration, which then returns
 /// `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
 /// on the same context from inside it return `SIE_STATUS_BUSY`.
@@ -247,7 +249,8 @@ pub struct sie_trace_entry {
     pub sigma: f64,
     pub beta: f64,
     pub penalty: f64,
-    /// Mean inlier probability over this iteration's correspondences.
+    /// sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
+    /// 0), over the source points this iteration matched, with this update's weights.
     pub inlier_fraction: f64,
     /// Weighted RMS residual (input units).
     pub rmse: f64,
@@ -259,6 +262,9 @@ pub struct sie_trace_entry {
     pub iteration: u32,
     /// True while beta is being annealed, false in the final round.
     pub annealing: bool,
+    /// T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
+    /// viewer can move the source cloud with it every iteration.
+    pub transform: [f64; 16],
 }
 
 /// Everything a context owns besides its last error message.

@@ -79,6 +79,7 @@ pub(crate) fn trace_entry_of(entry: &crate::registration::TraceEntry) -> sie_tra
         correspondences: entry.correspondences as u64,
         iteration: entry.iteration,
         annealing: entry.annealing,
+        transform: super::input::row_major(&entry.transform),
     }
 }
 

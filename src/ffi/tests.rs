@@ -111,6 +111,7 @@ fn sample_result() -> RegistrationResult {
             translation_change: 0.1,
             rotation_change: 0.01,
             correspondences: 3,
+            transform,
         }],
     }
 }
@@ -773,6 +774,10 @@ fn getters_copy_the_stored_result() {
         (trace[0].iteration, trace[0].annealing, trace[0].correspondences),
         (1, true, 3)
     );
+    // The transform reached by that update, row-major like every transform of the C API.
+    assert_eq!(trace[0].transform[3], 1.5);
+    assert_eq!(trace[0].transform[11], -0.5);
+    assert_eq!(trace[0].transform[15], 1.0);
     assert_eq!(trace[1], sie_trace_entry::default());
 }
 

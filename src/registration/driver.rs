@@ -214,8 +214,8 @@ pub(crate) fn run(
                 rows,
                 cols,
                 &work,
-                rotation_change,
-                translation_change,
+                &transform,
+                (rotation_change, translation_change),
             );
             let cancelled = observer
                 .as_mut()
@@ -309,23 +309,28 @@ pub(crate) fn run(
     })
 }
 
+/// `transform` is the one this iteration's update reached; `(rotation_change,
+/// translation_change)` the update's size.
 fn trace_entry(
     iteration: u32,
     weighting: &Weighting,
     rows: &Rows,
     cols: usize,
     work: &Workspace,
-    rotation_change: f64,
-    translation_change: f64,
+    transform: &Matrix4<f64>,
+    (rotation_change, translation_change): (f64, f64),
 ) -> TraceEntry {
     let model = weighting.summary();
     let n = rows.len();
-    let mean_probability = match weighting {
-        Weighting::Sie(_) => work.probabilities.iter().sum::<f64>() / n as f64,
+    // The summary's meaning, Σ P / source points (unmatched count 0), over the points this
+    // iteration looked at (all of them, or the sample).
+    let considered = rows.considered.max(n).max(1) as f64;
+    let inlier_fraction = match weighting {
+        Weighting::Sie(_) => work.probabilities.iter().sum::<f64>() / considered,
         Weighting::Baseline { .. } => {
             let largest = work.weights.iter().cloned().fold(0.0, f64::max);
             if largest > 0.0 {
-                work.weights.iter().sum::<f64>() / (n as f64 * largest)
+                work.weights.iter().sum::<f64>() / (considered * largest)
             } else {
                 0.0
             }
@@ -341,7 +346,7 @@ fn trace_entry(
         sigma: model.sigma.first().copied().unwrap_or(0.0),
         beta: model.beta.first().copied().unwrap_or(0.0),
         penalty: model.penalty,
-        inlier_fraction: mean_probability,
+        inlier_fraction,
         rmse: if weight_sum > 0.0 {
             (weighted_square / weight_sum).sqrt()
         } else {
@@ -350,5 +355,6 @@ fn trace_entry(
         translation_change,
         rotation_change,
         correspondences: n,
+        transform: *transform,
     }
 }

@@ -43,7 +43,11 @@ pub(crate) fn expand(
             _ => target,
         };
     }
-    result.inlier_fraction *= source_kept.len() as f64 / source_count.max(1) as f64;
+    let share = source_kept.len() as f64 / source_count.max(1) as f64;
+    result.inlier_fraction *= share;
+    for entry in &mut result.trace {
+        entry.inlier_fraction *= share;
+    }
     result.probabilities = probabilities;
     result.correspondences = correspondences;
     result

@@ -15,7 +15,7 @@ use nalgebra::Matrix4;
 use crate::cost::CostFunction;
 use crate::noise::{NoiseModel, NoiseScales};
 use crate::sie::{HistogramModel, SieOptions};
-pub use crate::sie::estimate::{InlierEstimate, estimate_inliers};
+pub use crate::sie::estimate::{InlierEstimate, MIN_ESTIMATE_ROWS, estimate_inliers};
 
 pub use crate::error::Error;
 pub use crate::geometry::Point;
@@ -185,7 +185,9 @@ pub struct TraceEntry {
     pub sigma: f64,
     pub beta: f64,
     pub penalty: f64,
-    /// Mean inlier probability over the correspondences of this iteration.
+    /// Σ P(I|r) / source points, as `RegistrationResult::inlier_fraction` (unmatched points
+    /// count 0), over the source points this iteration matched (all, or the sample), with the
+    /// weights of this update.
     pub inlier_fraction: f64,
     /// Weighted RMS residual of this iteration (input units).
     pub rmse: f64,
@@ -193,6 +195,8 @@ pub struct TraceEntry {
     pub translation_change: f64,
     pub rotation_change: f64,
     pub correspondences: usize,
+    /// T_target_source after this update (p_target = T · p_source): what a viewer animates.
+    pub transform: Matrix4<f64>,
 }
 
 /// Wall time of one registration's stages, in seconds (what a profile of the call would show,

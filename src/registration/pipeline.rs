@@ -10,13 +10,14 @@ use super::input::{
 };
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem};
 use super::{
-    Hooks, Metric, Observer, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
+    Hooks, Metric, Observer, TraceEntry, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
 };
 use crate::cost::CostFunction;
 use crate::sie::hypotheses::{self, Pairs};
 use crate::sie::significance;
 use crate::error::Error;
 use crate::geometry::Point;
+use crate::noise::NoiseScales;
 use crate::parallel::Workers;
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
@@ -47,7 +48,10 @@ pub fn register_correspondences(
                 skip_non_finite: false,
                 ..config.clone()
             };
-            let result = register_correspondences(&source_kept, &target_kept, init, &finite, hooks)?;
+            let share = kept.len() as f64 / source.len() as f64;
+            let result = with_share(hooks, share, |hooks| {
+                register_correspondences(&source_kept, &target_kept, init, &finite, hooks)
+            })?;
             return Ok(expand(result, &kept, source.len(), Some(&kept)));
         }
     }
@@ -176,16 +180,42 @@ fn register_finite_clouds(
     });
     let source_points = pick(source, &source_kept);
     let target_points = pick(target, &target_kept);
-    let result = register_clouds(
-        &source_points,
-        &target_points,
-        normals.as_deref(),
-        init,
-        &finite,
-        hooks,
-    )?;
+    let share = source_points.len() as f64 / source.len().max(1) as f64;
+    let result = with_share(hooks, share, |hooks| {
+        register_clouds(
+            &source_points,
+            &target_points,
+            normals.as_deref(),
+            init,
+            &finite,
+            hooks,
+        )
+    })?;
     let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
     Ok(expand(result, &source_map, source.len(), target_kept.as_deref()))
+}
+
+/// Runs `register` with `hooks` whose observer sees inlier fractions scaled by `share` (kept
+/// / given source points): dropped points count 0, as in the result.
+fn with_share<R>(hooks: Hooks<'_>, share: f64, register: impl FnOnce(Hooks<'_>) -> R) -> R {
+    let Hooks { noise, observer } = hooks;
+    // Coerced to the shorter lifetime of the wrapper below.
+    let noise = noise.map(|n| n as &mut dyn NoiseScales);
+    let Some(outer) = observer else {
+        return register(Hooks {
+            noise,
+            observer: None,
+        });
+    };
+    let mut scaled = |entry: &TraceEntry| {
+        let mut entry = entry.clone();
+        entry.inlier_fraction *= share;
+        outer(&entry)
+    };
+    register(Hooks {
+        noise,
+        observer: Some(&mut scaled),
+    })
 }
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).

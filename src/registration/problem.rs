@@ -24,6 +24,9 @@ pub struct Rows {
     pub residual: Vec<f64>,
     /// Noise scale F of each row (§4.4); 1 with constant noise.
     pub scale: Vec<f64>,
+    /// Source points this pass looked at; the rows are those of them that found a residual
+    /// (matched and, point-to-plane, with a target normal). Inlier fractions divide by it.
+    pub considered: usize,
 }
 
 impl Rows {
@@ -40,6 +43,7 @@ impl Rows {
         self.target.clear();
         self.residual.clear();
         self.scale.clear();
+        self.considered = 0;
     }
 }
 
@@ -116,6 +120,7 @@ impl<'a> CorrespondenceProblem<'a> {
             scale: (0..n)
                 .map(|i| noise_scale(&source_sigma, &target_sigma, i, i))
                 .collect(),
+            considered: n,
         };
         CorrespondenceProblem {
             source,
@@ -493,6 +498,7 @@ impl<'a> CloudProblem<'a> {
         let plane = self.metric == Metric::PointToPlane;
         let rows = &mut self.rows;
         rows.clear();
+        rows.considered = pass.order.len();
         self.row_sources.clear();
         self.pairs.clear();
         self.plane_terms.clear();

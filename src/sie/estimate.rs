@@ -7,6 +7,10 @@ use crate::error::Error;
 /// Largest residual magnitude `estimate_inliers` accepts (see there).
 const MAX_RESIDUAL: f64 = 1e140;
 
+/// Standalone SIE fits a histogram: below this many rows there is no peak to fit, and the
+/// answer (every P at its cap) would mean nothing.
+pub const MIN_ESTIMATE_ROWS: usize = 10;
+
 /// Standalone SIE on a residual matrix.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InlierEstimate {
@@ -80,6 +84,12 @@ pub fn estimate_inliers(
             "residual {i} is {:e} after row scaling; magnitudes above {MAX_RESIDUAL:e} cannot be squared \
              and summed without overflow (rescale the residuals)",
             normalised[i]
+        )));
+    }
+    // After every argument check, so that a bad argument is reported as such.
+    if rows < MIN_ESTIMATE_ROWS {
+        return Err(Error::TooFewPoints(format!(
+            "residual rows: {rows} given, at least {MIN_ESTIMATE_ROWS} needed"
         )));
     }
     let mut sie = SieEstimator::new(options.clone());

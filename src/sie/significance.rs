@@ -46,7 +46,7 @@ impl Background {
     #[inline]
     fn log_probability(&self, radius_squared: f64) -> Option<f64> {
         let ratio = radius_squared / self.spread_squared;
-        if !(ratio < 1.0) {
+        if ratio >= 1.0 || ratio.is_nan() {
             return None;
         }
         Some(0.5 * self.dims as f64 * ratio.max(RESOLUTION * RESOLUTION).ln())

@@ -805,6 +805,70 @@ static int32_t cancel_at_iteration(void *user_data, const sie_trace_entry *entry
     return entry->iteration >= *(const uint32_t *)user_data ? 1 : 0;
 }
 
+/* Records what a viewer would: every iteration's transform and inlier fraction. */
+typedef struct {
+    uint32_t calls;
+    uint32_t last_iteration;
+    double last_transform[16];
+    double last_inlier_fraction;
+    int rigid; /* every transform had last row 0 0 0 1 */
+} progress_log;
+
+static int32_t record_progress(void *user_data, const sie_trace_entry *entry) {
+    progress_log *log = (progress_log *)user_data;
+    log->calls++;
+    log->last_iteration = entry->iteration;
+    memcpy(log->last_transform, entry->transform, sizeof(log->last_transform));
+    log->last_inlier_fraction = entry->inlier_fraction;
+    log->rigid &= entry->transform[12] == 0.0 && entry->transform[13] == 0.0 && entry->transform[14] == 0.0 &&
+                  entry->transform[15] == 1.0;
+    return 0;
+}
+
+/* The progress callback carries the transform reached by each update (row-major), the last one
+ * is the returned transform, the recorded trace has the same transforms, and the inlier fraction
+ * means what the summary's means. */
+static void test_progress_transform(sie_context *ctx) {
+    double T[16];
+    progress_log log;
+    sie_summary summary;
+    sie_trace_entry *trace;
+    size_t len = 0;
+
+    memset(&log, 0, sizeof(log));
+    log.rigid = 1;
+    EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_set_trace(ctx, true), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_set_progress_callback(ctx, record_progress, &log), SIE_STATUS_OK);
+    EXPECT(ctx,
+           sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
+                                sizeof(padded_point), NULL, T),
+           SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_set_progress_callback(ctx, NULL, NULL), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    CHECK(log.calls == summary.iterations && log.last_iteration == summary.iterations);
+    CHECK(log.rigid);
+    CHECK(max_abs_difference(log.last_transform, T, 16) == 0.0);
+    CHECK(max_abs_difference(log.last_transform, cloud_truth, 16) < 0.01);
+    /* Converged: the last update's weights and the result's probabilities barely differ. */
+    CHECK(fabs(log.last_inlier_fraction - summary.inlier_fraction) < 0.01);
+    printf("progress: %u calls, last inlier fraction %.4f, summary %.4f\n", log.calls, log.last_inlier_fraction,
+           summary.inlier_fraction);
+
+    EXPECT(ctx, sie_context_get_trace(ctx, NULL, 0, &len), SIE_STATUS_OK);
+    CHECK(len == summary.iterations);
+    trace = (sie_trace_entry *)calloc(len + 1, sizeof(sie_trace_entry));
+    if (trace != NULL && len >= 2) {
+        EXPECT(ctx, sie_context_get_trace(ctx, trace, len, &len), SIE_STATUS_OK);
+        CHECK(max_abs_difference(trace[len - 1].transform, T, 16) == 0.0);
+        /* The first update already moved away from the identity guess. */
+        CHECK(max_abs_difference(trace[0].transform, IDENTITY, 16) > 1e-4);
+        CHECK(trace[len - 1].inlier_fraction == log.last_inlier_fraction);
+    }
+    free(trace);
+    EXPECT(ctx, sie_context_set_trace(ctx, false), SIE_STATUS_OK);
+}
+
 static void test_cancellation_and_non_finite(sie_context *ctx) {
     double T[16];
     uint32_t stop_at = 2;
@@ -867,6 +931,7 @@ int main(void) {
     test_cloud_registration(ctx);
     test_noise_callback(ctx);
     test_estimate_inliers(ctx);
+    test_progress_transform(ctx);
     test_cancellation_and_non_finite(ctx);
 
     sie_context_free(ctx);

@@ -1,19 +1,25 @@
 """Point-cloud registration with Statistical Inlier Estimation (SIE), over libsie's C ABI.
 
     import sie
-    with sie.Context() as ctx:
-        result = ctx.align(source, target)     # N x 3 arrays -> sie.Registration
+    result = sie.align(source, target)         # N x 3 arrays or open3d PointClouds -> sie.Registration
     result.transform                           # 4 x 4, T_target_source: p_target = T @ p_source
+    with sie.Context(max_iterations=100) as ctx:   # settings, callbacks, trace, histograms
+        result = ctx.align(source, target)
 
-Arrays: N x 3 (or N x k, k >= 3; the first three columns are used). float32 or float64 with
-contiguous columns are passed to the library in place (no copy), whatever their row stride,
-e.g. an N x 4 float32 array (stride 16); anything else is converted first. A pair of clouds is
-registered in float32 when both are float32, otherwise in float64.
+Clouds: N x 3 arrays (N x 4 too, e.g. padded float32; the first three columns are used) of real
+numbers, or open3d.geometry.PointCloud / open3d.t.geometry.PointCloud (a target's normals are
+then used for point-to-plane). float32 or float64 arrays with contiguous columns are passed to
+the library in place (no copy), whatever their row stride; anything else is converted first. A
+pair of clouds is registered in float32 when both are float32, otherwise in float64. A 3 x N
+array (points as columns), other column counts, and complex, string, object or boolean arrays
+are refused with ValueError / TypeError.
 
 Failures raise SieError with the library's status and message. A cancelled registration
 (Context.cancel(), or a progress callback returning False) is not a failure: it returns the
 transform reached, with summary.stop_reason == StopReason.CANCELLED. A Context is used by one
 thread at a time (except cancel(), callable from any thread); distinct Contexts are independent.
+The library is called through ctypes.CDLL, which releases the GIL during each call: Contexts in
+different threads register in parallel.
 """
 
 from __future__ import annotations
@@ -21,18 +27,18 @@ from __future__ import annotations
 import ctypes
 import enum
 from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+from typing import Any, Callable, List, Optional, Tuple, Union
 
 import numpy as np
+import numpy.typing as npt
 
 from . import _native
-
-__version__ = "0.1.0"
 
 _lib = _native.load_library()
 
 __all__ = [
     "Cloud",
+    "align",
     "Context",
     "CostFunction",
     "HistogramMode",
@@ -51,7 +57,17 @@ __all__ = [
 ]
 
 
-class Status(enum.IntEnum):
+class _NamedEnum(enum.IntEnum):
+    """An IntEnum that prints as its name (StopReason.CONVERGED), as on every Python version."""
+
+    def __str__(self) -> str:
+        return f"{type(self).__name__}.{self.name}"
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self), spec)
+
+
+class Status(_NamedEnum):
     OK = 0
     NULL_ARGUMENT = 1
     INVALID_ARGUMENT = 2
@@ -65,7 +81,7 @@ class Status(enum.IntEnum):
     PANIC = 100
 
 
-class CostFunction(enum.IntEnum):
+class CostFunction(_NamedEnum):
     SIE = 0
     L2 = 1
     TRUNCATED_L2 = 2
@@ -77,22 +93,22 @@ class CostFunction(enum.IntEnum):
     TUKEY = 8
 
 
-class Metric(enum.IntEnum):
+class Metric(_NamedEnum):
     POINT_TO_POINT = 0
     POINT_TO_PLANE = 1
 
 
-class NoiseModel(enum.IntEnum):
+class NoiseModel(_NamedEnum):
     CONSTANT = 0
     QUADRATIC_DEPTH = 1
 
 
-class HistogramMode(enum.IntEnum):
+class HistogramMode(_NamedEnum):
     POOLED = 0
     PER_COLUMN = 1
 
 
-class StopReason(enum.IntEnum):
+class StopReason(_NamedEnum):
     NONE = 0
     CONVERGED = 1
     ITERATION_LIMIT = 2
@@ -100,12 +116,12 @@ class StopReason(enum.IntEnum):
     CANCELLED = 4
 
 
-class Cloud(enum.IntEnum):
+class Cloud(_NamedEnum):
     SOURCE = 0
     TARGET = 1
 
 
-def _enum_or_int(kind, value):
+def _enum_or_int(kind: Any, value: int) -> Any:
     try:
         return kind(value)
     except ValueError:
@@ -124,12 +140,38 @@ class SieError(Exception):
 
 def library_version() -> str:
     """The loaded library's version, e.g. "0.1.0"."""
-    return _lib.sie_version_string().decode()
+    return str(_lib.sie_version_string().decode())
+
+
+def _package_version() -> str:
+    """The installed distribution's version; the wheel is versioned with the library it carries."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+    except ImportError:  # pragma: no cover - Python < 3.8
+        return library_version()
+    try:
+        return version("sie")
+    except PackageNotFoundError:  # run from a source checkout
+        return library_version()
+
+
+__version__ = _package_version()
 
 
 @dataclass(frozen=True)
 class Summary:
-    """Summary of a registration (sie_summary)."""
+    """Summary of a registration (sie_summary).
+
+    Units of sigma and beta: SIE fits the histogram of each residual divided by its pair's
+    noise scale F. With the constant noise model and no noise callback F = 1, so sigma is in
+    the input's units (metres for metric scans). With a noise callback F is
+    sqrt(sigma_source**2 + sigma_target**2) of the values it returned for the two matched
+    points, and with NoiseModel.QUADRATIC_DEPTH the same with sigma = z**2: sigma is then a
+    multiple of those values (about 1 when the callback returns the sensor's noise in input
+    units; a residual unit per callback unit in general). rmse is always in input units.
+    inlier_fraction is sum of P(inlier) over the source points / their number (unmatched
+    points count 0), the same quantity as TraceEntry.inlier_fraction.
+    """
 
     sigma: Tuple[float, float, float]
     beta: Tuple[float, float, float]
@@ -184,6 +226,8 @@ class Histogram:
 
 @dataclass(frozen=True)
 class TraceEntry:
+    """One iteration (sie_trace_entry): what a progress callback receives and trace() lists."""
+
     iteration: int
     sigma: float
     beta: float
@@ -194,6 +238,7 @@ class TraceEntry:
     rotation_change: float
     correspondences: int
     annealing: bool
+    transform: np.ndarray  # 4 x 4 T_target_source reached by this update, for a viewer
 
 
 @dataclass(frozen=True)
@@ -213,7 +258,7 @@ class _Points:
     """An N x k array as the library reads it: pointer, count, byte stride, element type.
     Holds a reference to the array (the original or a converted copy) while in use."""
 
-    def __init__(self, array: np.ndarray, dtype):
+    def __init__(self, array: np.ndarray, dtype: npt.DTypeLike) -> None:
         self.array = array
         self.dtype = np.dtype(dtype)
         self.count = array.shape[0]
@@ -226,12 +271,30 @@ class _Points:
         return self.array.ctypes.data
 
 
-def _points(values, name: str, dtype) -> _Points:
+def _real_array(values: Any, name: str) -> np.ndarray:
+    """np.asarray(values), refusing what is not real numbers (as numpy users expect)."""
+    array = np.asarray(values)
+    if array.dtype.kind not in "fiu":
+        kind = {"c": "complex", "b": "boolean", "U": "string", "S": "bytes", "O": "object"}.get(
+            array.dtype.kind, "non-numeric")
+        raise TypeError(f"{name} has {kind} dtype {array.dtype}; coordinates must be real numbers "
+                        "(float32 or float64, integers are converted)")
+    return array
+
+
+def _points(values: Any, name: str, dtype: npt.DTypeLike) -> _Points:
     """`values` as points of `dtype` (float32 or float64) without copying when the memory already
     has that layout: native-endian `dtype`, contiguous columns, a positive row stride."""
-    array = np.asarray(values)
-    if array.ndim != 2 or array.shape[1] < 3:
-        raise ValueError(f"{name} must be an N x 3 array (N x k, k >= 3, also works); got shape {array.shape}")
+    array = _real_array(values, name)
+    if array.ndim != 2 or array.shape[1] not in (3, 4):
+        shape = tuple(array.shape)
+        if array.ndim == 2 and array.shape[0] in (3, 4):
+            hint = f"; it looks like {array.shape[0]} x N, one point per column: pass {name}.T"
+        elif array.ndim == 2 and array.shape[1] > 4:
+            hint = f"; for more columns pass {name}[:, :3] (a view, not copied)"
+        else:
+            hint = ""
+        raise ValueError(f"{name} must be an N x 3 array of points (N x 4 also works); got shape {shape}{hint}")
     dtype = np.dtype(dtype)
     item = dtype.itemsize
     in_place = (
@@ -247,31 +310,53 @@ def _points(values, name: str, dtype) -> _Points:
     return _Points(array, dtype)
 
 
-def _cloud_dtype(*arrays) -> type:
+def _open3d_cloud(cloud: Any) -> Optional[Tuple[np.ndarray, Optional[np.ndarray]]]:
+    """(points, normals or None) of an open3d.geometry.PointCloud (legacy, points as a float64
+    view) or open3d.t.geometry.PointCloud (tensor); None for anything else. Open3D itself is
+    never imported here: only its objects are recognised."""
+    if not type(cloud).__module__.startswith("open3d"):
+        return None
+    tensor_attributes = getattr(cloud, "point", None)
+    if tensor_attributes is not None and hasattr(tensor_attributes, "positions"):
+        points = tensor_attributes.positions.cpu().numpy()
+        normals = tensor_attributes.normals.cpu().numpy() if "normals" in tensor_attributes else None
+        return points, normals
+    if hasattr(cloud, "points") and hasattr(cloud, "has_normals"):
+        points = np.asarray(cloud.points)
+        normals = np.asarray(cloud.normals) if cloud.has_normals() else None
+        return points, normals
+    raise TypeError(f"{type(cloud).__module__}.{type(cloud).__name__} is not a point cloud sie can read")
+
+
+def _cloud_dtype(*arrays: Any) -> type:
     """float32 when every input is float32 (the float entry points, zero copy), else float64."""
     return np.float32 if all(np.asarray(a).dtype == np.float32 for a in arrays) else np.float64
 
 
-def _transform_in(init) -> Optional[np.ndarray]:
+def _transform_in(init: Optional[npt.ArrayLike]) -> Optional[np.ndarray]:
     if init is None:
         return None
-    matrix = np.ascontiguousarray(init, dtype=np.float64)
+    matrix = np.ascontiguousarray(_real_array(init, "init"), dtype=np.float64)
     if matrix.shape != (4, 4):
         raise ValueError(f"init must be a 4 x 4 matrix, got shape {matrix.shape}")
     return matrix
 
 
-def _double_pointer(array: Optional[np.ndarray]):
+def _double_pointer(array: Optional[np.ndarray]) -> Any:
     return None if array is None else array.ctypes.data_as(_native.c_double_p)
 
 
-NoiseCallback = Callable[[Cloud, np.ndarray], "np.typing.ArrayLike"]
+NoiseCallback = Callable[[Cloud, np.ndarray], npt.ArrayLike]
 ProgressCallback = Callable[[TraceEntry], Optional[bool]]
+#: A cloud: an N x 3 (or N x 4) array-like of real numbers, or an Open3D point cloud.
+CloudLike = Union[npt.ArrayLike, Any]
 
 
 def _trace_entry(e: _native.sie_trace_entry) -> TraceEntry:
+    transform = np.array(e.transform, dtype=np.float64).reshape(4, 4)  # row-major in C
     return TraceEntry(int(e.iteration), e.sigma, e.beta, e.penalty, e.inlier_fraction, e.rmse,
-                      e.translation_change, e.rotation_change, int(e.correspondences), bool(e.annealing))
+                      e.translation_change, e.rotation_change, int(e.correspondences), bool(e.annealing),
+                      transform)
 
 
 class Context:
@@ -281,14 +366,14 @@ class Context:
     max_iterations=50); each maps to the set_<name> method. cost takes CostFunction or
     (CostFunction, parameter)."""
 
-    def __init__(self, **settings):
+    def __init__(self, **settings: Any) -> None:
         handle = _lib.sie_context_new()
         if not handle:
             raise MemoryError("sie_context_new returned NULL")
         self._handle = ctypes.c_void_p(handle)
         # The ctypes callback objects the library points at, and what a callback raised.
-        self._noise_function = None
-        self._progress_function = None
+        self._noise_function: Optional[Any] = None
+        self._progress_function: Optional[Any] = None
         self._callback_error: Optional[BaseException] = None
         for name, value in settings.items():
             if name == "cost":
@@ -325,10 +410,10 @@ class Context:
     def __enter__(self) -> "Context":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def __del__(self):
+    def __del__(self) -> None:
         self.close()
 
     # ---- errors ------------------------------------------------------------------------
@@ -415,7 +500,7 @@ class Context:
             self._progress_function = None
             return self
 
-        def trampoline(_user_data, entry):
+        def trampoline(_user_data: Any, entry: Any) -> int:
             try:
                 return 1 if function(_trace_entry(entry.contents)) is False else 0
             except BaseException as error:  # noqa: BLE001 - re-raised by _run after the call
@@ -429,15 +514,19 @@ class Context:
 
     def set_noise_callback(self, function: Optional[NoiseCallback]) -> "Context":
         """Per-point noise: function(cloud, xyz) gets a Cloud and a read-only n x 3 float64 array
-        (that cloud's points in its own frame, valid during the call only) and returns n relative
-        sigmas (finite, > 0). Called once per cloud per registration, on the calling thread.
-        Whatever it raises aborts the registration and is re-raised by align*(). None removes it."""
+        (that cloud's points in its own frame, valid during the call only) and returns n sigmas
+        (finite, > 0). Called once per cloud per registration, on the calling thread.
+        Whatever it raises aborts the registration and is re-raised by align*(). None removes it.
+
+        Each residual is then divided by F = sqrt(sigma_source**2 + sigma_target**2) of its two
+        points, so Summary.sigma is in multiples of the returned values (about 1 when they are
+        the sensor's noise in input units), not in input units; rmse stays in input units."""
         if function is None:
             self._check(_lib.sie_context_set_noise_callback(self._handle, _native.NOISE_FN(), None))
             self._noise_function = None
             return self
 
-        def trampoline(_user_data, cloud, xyz, n, out_sigma):
+        def trampoline(_user_data: Any, cloud: int, xyz: Any, n: int, out_sigma: Any) -> int:
             # Nothing may propagate into the library (ctypes would print and return 0).
             try:
                 points = np.ctypeslib.as_array(xyz, shape=(n, 3)) if n else np.empty((0, 3))
@@ -459,9 +548,20 @@ class Context:
 
     # ---- registration ------------------------------------------------------------------
 
-    def align(self, source, target, init=None, target_normals=None) -> Registration:
-        """ICP of source onto target. target_normals (N x 3, unit or 0 0 0 for none) replaces
-        the estimated normals of point-to-plane; it uses the float32 entry point."""
+    def align(self, source: CloudLike, target: CloudLike, init: Optional[npt.ArrayLike] = None,
+              target_normals: Optional[npt.ArrayLike] = None) -> Registration:
+        """ICP of source onto target; see the module docstring for the clouds accepted.
+        target_normals (N x 3, unit or 0 0 0 for none) replaces the estimated normals of
+        point-to-plane (float32 entry point); an Open3D target's own normals are used the same
+        way unless target_normals is given."""
+        opened = _open3d_cloud(source)
+        if opened is not None:
+            source = opened[0]
+        opened = _open3d_cloud(target)
+        if opened is not None:
+            target = opened[0]
+            if target_normals is None:
+                target_normals = opened[1]
         transform_in = _transform_in(init)
         out = np.empty((4, 4), dtype=np.float64)
         if target_normals is not None:
@@ -486,7 +586,8 @@ class Context:
         self._run(status)
         return self._registration(out)
 
-    def align_correspondences(self, source, target, init=None) -> Registration:
+    def align_correspondences(self, source: npt.ArrayLike, target: npt.ArrayLike,
+                              init: Optional[npt.ArrayLike] = None) -> Registration:
         """Matched pairs: source[i] corresponds to target[i]; always point-to-point."""
         dtype = _cloud_dtype(source, target)
         s = _points(source, "source", dtype)
@@ -521,7 +622,7 @@ class Context:
             _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
         )
 
-    def _array(self, getter, dtype, ctype) -> np.ndarray:
+    def _array(self, getter: Any, dtype: npt.DTypeLike, ctype: Any) -> np.ndarray:
         length = ctypes.c_size_t(0)
         self._check(getter(self._handle, None, 0, ctypes.byref(length)))
         values = np.empty(length.value, dtype=dtype)
@@ -554,9 +655,11 @@ class Context:
 
     # ---- the estimator alone -----------------------------------------------------------
 
-    def estimate_inliers(self, residuals, row_scales=None, beta: float = 0.0) -> InlierEstimate:
-        """P(inlier) per row of a residual matrix (rows x cols, or a 1-D vector of rows x 1)."""
-        matrix = np.ascontiguousarray(residuals, dtype=np.float64)
+    def estimate_inliers(self, residuals: npt.ArrayLike, row_scales: Optional[npt.ArrayLike] = None,
+                         beta: float = 0.0) -> InlierEstimate:
+        """P(inlier) per row of a residual matrix (rows x cols, or a 1-D vector of rows x 1).
+        At least 10 rows (SieError TOO_FEW_POINTS otherwise: too few to fit a histogram)."""
+        matrix = np.ascontiguousarray(_real_array(residuals, "residuals"), dtype=np.float64)
         if matrix.ndim == 1:
             matrix = matrix.reshape(-1, 1)
         if matrix.ndim != 2:
@@ -564,7 +667,7 @@ class Context:
         rows, cols = matrix.shape
         scales = None
         if row_scales is not None:
-            scales = np.ascontiguousarray(row_scales, dtype=np.float64)
+            scales = np.ascontiguousarray(_real_array(row_scales, "row_scales"), dtype=np.float64)
             if scales.shape != (rows,):
                 raise ValueError(f"row_scales must have shape ({rows},), got {scales.shape}")
         probabilities = np.empty(rows, dtype=np.float64)
@@ -575,3 +678,12 @@ class Context:
             _double_pointer(probabilities), models, len(models), ctypes.byref(count),
         ))
         return InlierEstimate(probabilities, [_model(m) for m in models[: count.value]])
+
+
+def align(source: CloudLike, target: CloudLike, init: Optional[npt.ArrayLike] = None,
+          target_normals: Optional[npt.ArrayLike] = None, **settings: Any) -> Registration:
+    """One registration with a fresh Context: sie.align(source, target, max_iterations=100, ...)
+    is Context(**settings).align(source, target, init, target_normals). Clouds are N x 3 arrays
+    or Open3D point clouds (an Open3D target's normals are used for point-to-plane)."""
+    with Context(**settings) as context:
+        return context.align(source, target, init=init, target_normals=target_normals)

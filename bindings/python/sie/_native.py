@@ -1,4 +1,7 @@
-"""Loading libsie and declaring its C functions (mirrors include/sie.h; no compiled code)."""
+"""Loading libsie and declaring its C functions (mirrors include/sie.h; no compiled Python code).
+
+The library is a plain shared library called through ctypes.CDLL, which releases the GIL for
+the duration of every call: registrations in several Python threads run in parallel."""
 
 from __future__ import annotations
 
@@ -7,6 +10,7 @@ import ctypes.util
 import os
 import sys
 from pathlib import Path
+from typing import Iterator
 
 # The ABI this module is written against: sie.h 0.1 (soname libsie.so.0.1).
 ABI_MAJOR = 0
@@ -65,6 +69,7 @@ class sie_trace_entry(ctypes.Structure):
         ("correspondences", ctypes.c_uint64),
         ("iteration", ctypes.c_uint32),
         ("annealing", ctypes.c_bool),
+        ("transform", ctypes.c_double * 16),
     ]
 
 
@@ -149,13 +154,19 @@ _SIGNATURES = {
 }
 
 
-def _candidates():
+BUNDLED = Path(__file__).resolve().parent / SONAME
+
+
+def _candidates() -> Iterator[str]:
     """Where to look for the library, in order (see the package README)."""
     explicit = os.environ.get("SIE_LIBRARY")
     if explicit:
         # An explicit choice is final: silently loading another copy would hide a mistake.
         yield explicit
         return
+    # The copy pip installed inside the package (setup.py builds it with cargo).
+    if BUNDLED.exists():
+        yield str(BUNDLED)
     yield SONAME  # the dynamic loader's own search: LD_LIBRARY_PATH, ldconfig cache, /usr/lib
     for prefix in dict.fromkeys([sys.prefix, "/usr/local", "/usr"]):
         for libdir in ("lib", "lib64", "lib/x86_64-linux-gnu", "lib/aarch64-linux-gnu"):
@@ -187,6 +198,7 @@ def load_library() -> ctypes.CDLL:
             )
         return library
     raise ImportError(
-        "libsie not found; build and install it (README: cmake --install), or set SIE_LIBRARY to the "
-        "path of libsie.so.0.1. Tried: " + "; ".join(errors or ["nothing"])
+        "libsie not found: `pip install ./bindings/python` builds it into the package (needs the Rust "
+        "toolchain), a wheel carries it; or set SIE_LIBRARY to the path of libsie.so.0.1. Tried: "
+        + "; ".join(errors or ["nothing"])
     )

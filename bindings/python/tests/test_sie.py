@@ -3,6 +3,7 @@ SIE_LIBRARY to the staged install)."""
 
 from __future__ import annotations
 
+import ctypes
 import os
 from pathlib import Path
 
@@ -101,8 +102,93 @@ def rms(T, source, target):
 # ---- the binding itself ------------------------------------------------------------------------
 
 
+REPOSITORY = Path(__file__).resolve().parents[3]
+
+
 def test_library_version_matches_the_binding():
     assert sie.library_version() == sie.__version__
+    # One version everywhere: the wheel's is the Rust package's (setup.py reads Cargo.toml).
+    cargo = REPOSITORY / "Cargo.toml"
+    if cargo.is_file():
+        line = next(l for l in cargo.read_text().splitlines() if l.startswith("version = "))
+        assert sie.__version__ == line.split('"')[1]
+
+
+def test_the_library_is_called_with_the_gil_released():
+    # ctypes.CDLL releases the GIL around every call (PyDLL would hold it): registrations in
+    # several threads (e.g. a Dask worker's) run in parallel.
+    assert isinstance(sie._lib, ctypes.CDLL) and not isinstance(sie._lib, ctypes.PyDLL)
+
+
+def test_package_is_typed():
+    package = Path(sie.__file__).parent
+    assert (package / "py.typed").is_file()
+    if os.environ.get("SIE_EXPECT_BUNDLED") == "1":
+        # Installed with pip: the library inside the package is the one loaded.
+        assert Path(sie._lib._name).resolve() == (package / "libsie.so.0.1").resolve()
+
+
+def test_enums_print_as_names():
+    assert str(sie.StopReason.CONVERGED) == "StopReason.CONVERGED"
+    assert f"{sie.Status.TOO_FEW_POINTS}" == "Status.TOO_FEW_POINTS"
+    assert f"{sie.Metric.POINT_TO_PLANE:>30}".endswith("Metric.POINT_TO_PLANE")
+    assert sie.StopReason.CONVERGED == 1  # still the C value
+
+
+def test_numpy_style_validation(clouds):
+    source, target, _ = clouds
+    ctx = sie.Context()
+    # Points as columns: refused with the fix, not read as 3 points.
+    with pytest.raises(ValueError, match=r"3 x N.*source\.T"):
+        ctx.align(source.T, target)
+    with pytest.raises(ValueError, match=r"target\[:, :3\]"):
+        ctx.align(source, np.c_[target, target])
+    with pytest.raises(ValueError, match="N x 3"):
+        ctx.align(source[:, 0], target)
+    for bad, kind in [(source.astype(np.complex128), "complex"), (source.astype(str), "string"),
+                      (source.astype(object), "object"), (source > 0, "boolean")]:
+        with pytest.raises(TypeError, match=kind):
+            ctx.align(bad, target)
+    with pytest.raises(TypeError, match="complex"):
+        ctx.align(source, target, init=np.eye(4, dtype=complex))
+    with pytest.raises(TypeError, match="string"):
+        ctx.estimate_inliers(["0.1"] * 20)
+    # Integers are numbers: converted.
+    as_int = np.rint(source * 1000).astype(np.int32)
+    result = ctx.align(as_int, np.rint(target * 1000).astype(np.int64))
+    assert result.summary.source_count == len(source)
+    # Too few residuals for a histogram: said, not answered with P at its cap.
+    with pytest.raises(sie.SieError) as error:
+        ctx.estimate_inliers([0.1, -0.2])
+    assert error.value.status is sie.Status.TOO_FEW_POINTS
+    assert "2 given, at least 10" in error.value.message
+
+
+def test_progress_carries_the_transform_and_the_summary_inlier_fraction(clouds):
+    source, target, _ = clouds
+    seen = []
+    ctx = sie.Context(trace=True)
+    ctx.set_progress_callback(seen.append)
+    result = ctx.align(source, target)
+    assert len(seen) == result.summary.iterations
+    assert all(e.transform.shape == (4, 4) and np.array_equal(e.transform[3], [0, 0, 0, 1]) for e in seen)
+    # The last update's transform is the result; a viewer moving the cloud with each one ends there.
+    np.testing.assert_array_equal(seen[-1].transform, result.transform)
+    assert not np.allclose(seen[0].transform, np.eye(4))  # the first update already moved
+    # One meaning of "inlier fraction": progress and summary agree at convergence.
+    assert abs(seen[-1].inlier_fraction - result.summary.inlier_fraction) < 0.01
+    np.testing.assert_array_equal(ctx.trace()[-1].transform, result.transform)
+
+
+def test_module_level_align(clouds):
+    source, target, normals = clouds
+    result = sie.align(source, target, max_iterations=150, threads=1)
+    rotation, translation = pose_error(result.transform, TRUTH)
+    assert rotation < 0.2 and translation < 0.004
+    with_normals = sie.align(source, target, target_normals=normals)
+    assert pose_error(with_normals.transform, TRUTH)[0] < 0.2
+    with pytest.raises(TypeError, match="unknown setting"):
+        sie.align(source, target, no_such_setting=1)
 
 
 def test_float32_n_by_3_and_n_by_4_are_passed_in_place():
@@ -454,3 +540,28 @@ def test_library_search_order():
         found = _import_in_subprocess({**base, "LD_LIBRARY_PATH": str(loaded.parent)})
         assert found.returncode == 0, found.stderr
         assert found.stdout.strip() in ("libsie.so.0.1", str(loaded))
+
+
+def test_type_hints_serve_a_strict_mypy_user(tmp_path):
+    """py.typed: mypy --strict on user code finds sie's hints (no missing-stubs error) and
+    catches a misuse."""
+    from conftest import require
+
+    mypy = require("mypy.api")
+    good = tmp_path / "good.py"
+    good.write_text(
+        "import numpy as np\n"
+        "import sie\n\n\n"
+        "def register(source: np.ndarray, target: np.ndarray) -> np.ndarray:\n"
+        "    result: sie.Registration = sie.align(source, target, max_iterations=50)\n"
+        "    reason: sie.StopReason = result.summary.stop_reason\n"
+        "    print(reason, result.summary.sigma[0] + 1.0)\n"
+        "    return result.transform\n"
+    )
+    cache = ["--cache-dir", str(tmp_path / "mypy-cache")]  # numpy's stubs analysed once
+    out, err, status = mypy.run(["--strict", *cache, str(good)])
+    assert status == 0, out + err
+    bad = tmp_path / "bad.py"
+    bad.write_text("import sie\n\nsigma: str = sie.Context().summary().sigma\n")
+    out, err, status = mypy.run(["--strict", *cache, str(bad)])
+    assert status == 1 and "Incompatible types" in out, out + err
