@@ -269,16 +269,24 @@ pub fn register_clouds(
         workers,
     )
     .map_err(Error::InvalidArgument)?;
-    let mut result = if config.cost == CostFunction::Sie
-        && config.starts == Starts::Automatic
-        && config.initial_beta.is_none()
-    {
-        register_from_widths(&mut problem, init, config, hooks.observer)?
-    } else {
-        run(&mut problem, init, 1, config, hooks.observer)?
-    };
+    let mut result = register_cloud_problem(&mut problem, init, config, hooks.observer)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
+}
+
+/// ICP on a built problem (target index and normals ready): SIE's starts, or the baseline's
+/// single run.
+fn register_cloud_problem(
+    problem: &mut CloudProblem<'_>,
+    init: Matrix4<f64>,
+    config: &RegistrationConfig,
+    observer: Option<&mut Observer<'_>>,
+) -> Result<RegistrationResult, Error> {
+    if config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none() {
+        register_from_widths(problem, init, config, observer)
+    } else {
+        run(problem, init, 1, config, observer)
+    }
 }
 
 /// ICP from the initial guess with β₀ at several fractions of the RMS residual: the paper's
