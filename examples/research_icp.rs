@@ -16,6 +16,7 @@ fn main() {
     let filter = std::env::args().nth(1).unwrap_or_default();
     let (mut cases, _) = scans::bunny_pairs(&data).unwrap();
     cases.push(scans::lidar_pair(&data).unwrap());
+    cases.push(scans::room_pair(&data).unwrap());
     cases.extend(scans::depth_pairs(&data).unwrap());
     let mut jobs = vec![];
     for (c, case) in cases.iter().enumerate() {
@@ -52,20 +53,20 @@ fn main() {
                     }
                 }
                 let ok = case.success(e);
-                out.lock().unwrap().push((*c, *s, ok, e, r.sigma[0], r.inlier_fraction, r.iterations, t.elapsed().as_secs_f64(), r.search.significance));
+                out.lock().unwrap().push((*c, *s, ok, e, r.sigma[0], r.inlier_fraction, r.iterations, t.elapsed().as_secs_f64(), r.search.significance, r.search.start, r.search.agreeing_starts, r.search.runner_up_significance));
             });
         }
     });
     let mut out = out.into_inner().unwrap();
     out.sort_by_key(|o| (o.0, o.1));
     let mut per: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
-    for (c, s, ok, e, sigma, frac, it, secs, sig) in &out {
+    for (c, s, ok, e, sigma, frac, it, secs, sig, kind, agree, runner) in &out {
         let case = &cases[*c];
         let e2 = per.entry(case.settings.name.to_string()).or_default();
         e2.0 += *ok as usize;
         e2.1 += 1;
         println!(
-            "{:30} {:28} start {s} {} {:7.2}° {:8.4} m  σ {sigma:.2e} P {frac:.3} it {it} {secs:.2}s sig {sig:.1}",
+            "{:30} {:28} start {s} {} {:7.2}° {:8.4} m  σ {sigma:.2e} P {frac:.3} it {it} {secs:.2}s sig {sig:.1} {kind:?} agree {agree} runner {runner:.1}",
             case.settings.name,
             case.label(),
             if *ok { "ok  " } else { "FAIL" },

@@ -241,6 +241,7 @@ pub(crate) fn run(
             Convergence::NotYet => false,
             Convergence::Tolerance => below_tolerance,
             Convergence::ToleranceOrCycle => below_tolerance || two_cycle,
+            Convergence::Resolved => true,
         };
         if converged {
             stop = StopReason::Converged;
@@ -305,6 +306,8 @@ pub(crate) fn run(
             hypotheses: 0,
             starts_run: 1,
             significance: 0.0,
+            agreeing_starts: 1,
+            runner_up_significance: 0.0,
         },
     })
 }

@@ -48,21 +48,27 @@ pub enum StopReason {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Starts {
     /// Correspondences: besides the initial guess, the poses of a threshold-free hypothesis
-    /// search (`sie::hypotheses`); SIE runs from the most significant ones and the result with
-    /// the most significant inlier cluster is returned. ICP: the initial guess.
+    /// search (`sie::hypotheses`). ICP: the initial guess with the paper's β₀, with a narrow
+    /// β₀, and after a scale-free lead (`sie::starts`). SIE runs from each and the result with
+    /// the most significant inlier cluster is returned. Each start may make up to
+    /// `max_iterations` updates.
     #[default]
     Automatic,
     /// Only the initial guess (the paper's method as published).
     InitialGuess,
 }
 
-/// Which start the returned transform came from.
+/// Which start the returned transform came from (`sie::starts`, `sie::hypotheses`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum StartKind {
-    /// The caller's initial guess (the identity when none was given).
+    /// The caller's initial guess (the identity when none was given) with the paper's β₀.
     #[default]
     InitialGuess,
-    /// A pose found by the hypothesis search.
+    /// The initial guess with β₀ far below the RMS of the initial residuals (ICP).
+    NarrowBeta,
+    /// A scale-free (L1) IRLS run from the initial guess, then SIE (ICP).
+    ScaleFreeLead,
+    /// A pose found by the hypothesis search (correspondences).
     Hypothesis,
 }
 
@@ -75,7 +81,8 @@ pub struct RegistrationConfig {
     pub metric: Metric,
     /// Where SIE starts (SIE only; baselines start from the initial guess).
     pub starts: Starts,
-    /// Cap on IRLS updates (each is one match + weight + solve step).
+    /// Cap on IRLS updates (each is one match + weight + solve step) of each start
+    /// (`Starts::Automatic` runs several; `RegistrationResult::iterations` counts them all).
     pub max_iterations: u32,
     /// Converged when the update moves the source centroid by less than this (input units) …
     pub translation_tolerance: f64,
@@ -266,9 +273,14 @@ pub struct SearchReport {
     pub hypotheses: u32,
     /// Starts SIE was run from (1 without a search).
     pub starts_run: u32,
-    /// Significance of the inlier cluster at the returned transform (`sie::significance`;
-    /// nats, 0 when nothing stands out from chance). 0 when no search ran.
+    /// Significance of the inlier cluster at the returned transform, at the scale of its
+    /// fitted σ (`sie::significance::at_scale`; nats, 0 when nothing stands out from chance).
+    /// 0 when only one start ran.
     pub significance: f64,
+    /// Starts whose result is the returned pose (within 3 standard errors), itself included.
+    pub agreeing_starts: u32,
+    /// The largest significance among starts that ended elsewhere (0: none did).
+    pub runner_up_significance: f64,
 }
 
 

@@ -8,13 +8,14 @@ use super::driver::run;
 use super::input::{
     checked_initial_guess, expand, finite_indices, is_finite, noise_sigmas, require_finite, require_points,
 };
-use super::problem::{CloudProblem, CorrespondenceProblem, Problem};
+use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
 use super::{
     Hooks, Metric, Observer, TraceEntry, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
 };
 use crate::cost::CostFunction;
 use crate::sie::hypotheses::{self, Pairs};
-use crate::sie::significance;
+use crate::sie::significance::{self, Background};
+use crate::sie::starts::{CLOUD_STARTS, LEAD_ROTATION_TOLERANCE, LEAD_TRANSLATION_FRACTION, Lead};
 use crate::error::Error;
 use crate::geometry::Point;
 use crate::noise::NoiseScales;
@@ -78,7 +79,7 @@ const MAX_STARTS: usize = 3;
 
 /// Correspondence registration from the hypothesis search's most significant poses (the
 /// initial guess among them): SIE from each, starting with β₀ at the pose's cluster radius
-/// (per component), and the result whose inlier cluster is most significant on all pairs wins.
+/// (per component), and the most significant result at its own scale wins.
 fn register_from_hypotheses(
     problem: &mut CorrespondenceProblem<'_>,
     source: &[Point],
@@ -94,7 +95,6 @@ fn register_from_hypotheses(
         scales: &scales,
     };
     let search = hypotheses::search(&pairs, &init, config.seed);
-    let background = pairs.background();
     let best_significance = search.candidates.first().map_or(0.0, |h| h.cluster.significance);
     if best_significance <= 0.0 {
         // No pose stands out from chance: the paper's method from the initial guess.
@@ -102,53 +102,115 @@ fn register_from_hypotheses(
         result.search.hypotheses = search.samples as u32;
         return Ok(result);
     }
+    let mut best = BestOfStarts::new(pairs.background());
     let starts = search
         .candidates
         .iter()
         .filter(|h| h.cluster.significance >= CLOSE_CALL * best_significance)
         .take(MAX_STARTS);
-    let mut best: Option<(f64, RegistrationResult)> = None;
-    let mut next_iteration = 1;
-    let mut starts_run = 0;
-    let mut squared_norms = Vec::with_capacity(source.len());
     for start in starts {
         let start_config = RegistrationConfig {
             initial_beta: Some(start.cluster.radius / 3f64.sqrt()),
             ..config.clone()
         };
-        let mut result = run(problem, start.transform, next_iteration, &start_config, observer.as_deref_mut())?;
-        starts_run += 1;
-        next_iteration = result.iterations + 1;
-        squared_norms.clear();
-        squared_norms.extend(
-            problem
-                .rows()
-                .residual
-                .chunks_exact(3)
-                .zip(&problem.rows().scale)
-                .map(|(r, f)| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) / (f * f)),
-        );
-        let significance = significance::most_significant(&mut squared_norms, &background).significance;
-        result.search.start = if start.is_initial_guess {
+        let result = run(problem, start.transform, best.next_iteration, &start_config, observer.as_deref_mut())?;
+        let kind = if start.is_initial_guess {
             StartKind::InitialGuess
         } else {
             StartKind::Hypothesis
         };
-        let cancelled = result.stop_reason == StopReason::Cancelled;
-        let better = best.as_ref().is_none_or(|(s, _)| significance > *s);
-        if better || cancelled {
-            result.search.significance = significance;
-            best = Some((significance, result));
-        }
-        if cancelled {
+        if !best.offer(problem, result, kind) {
             break;
         }
     }
-    let (_, mut result) = best.expect("at least the best candidate ran");
-    result.iterations = next_iteration - 1;
+    let mut result = best.finish(problem);
     result.search.hypotheses = search.samples as u32;
-    result.search.starts_run = starts_run;
     Ok(result)
+}
+
+/// The most significant result of SIE from several starts on one problem, each judged on
+/// every row at the scale its own fit claims (`significance::at_scale`).
+struct BestOfStarts {
+    background: Background,
+    best: Option<(f64, RegistrationResult)>,
+    /// Every start's final transform, significance and precision (pose standard error as a
+    /// row displacement).
+    ends: Vec<(Matrix4<f64>, f64, f64)>,
+    /// Number of the next update (the runs are numbered on).
+    next_iteration: u32,
+    starts_run: u32,
+}
+
+impl BestOfStarts {
+    fn new(background: Background) -> Self {
+        BestOfStarts {
+            background,
+            best: None,
+            ends: Vec::new(),
+            next_iteration: 1,
+            starts_run: 0,
+        }
+    }
+
+    /// Scores a run's result (its rows, at its transform, are the problem's last rows) and
+    /// keeps it if it is the best so far. False when the run was cancelled: no more starts.
+    fn offer(&mut self, problem: &dyn Problem, mut result: RegistrationResult, start: StartKind) -> bool {
+        self.starts_run += 1;
+        self.next_iteration = result.iterations + 1;
+        let norms = squared_norms(problem.rows(), problem.cols());
+        let sigma = (result.sigma.iter().map(|s| s * s).sum::<f64>() / result.sigma.len().max(1) as f64).sqrt();
+        let cluster = significance::at_scale(&norms, &self.background, sigma);
+        let significance = cluster.significance;
+        let precision = sigma * (6.0 / (cluster.count.max(1) as f64)).sqrt();
+        self.ends.push((result.transform, significance, precision));
+        result.search.start = start;
+        result.search.significance = significance;
+        let cancelled = result.stop_reason == StopReason::Cancelled;
+        // A cancelled run's transform is the one the caller stopped at: report it.
+        if cancelled || self.best.as_ref().is_none_or(|(s, _)| significance > *s) {
+            self.best = Some((significance, result));
+        }
+        !cancelled
+    }
+
+    /// The best result, with how the other starts' results relate to it: how many ended at
+    /// the same pose (within a few standard errors of either), and the significance of the best
+    /// one that did not.
+    fn finish(self, problem: &dyn Problem) -> RegistrationResult {
+        let (_, mut result) = self.best.expect("at least one start ran");
+        result.iterations = self.next_iteration - 1;
+        result.search.starts_run = self.starts_run;
+        let (mut agreeing, mut runner_up) = (0, 0.0f64);
+        for (transform, significance, precision) in &self.ends {
+            let apart = problem.displacement(&result.transform, transform);
+            let best_precision = self
+                .ends
+                .iter()
+                .find(|end| end.0 == result.transform)
+                .map_or(*precision, |end| end.2);
+            if apart <= SAME_POSE_ERRORS * precision.max(best_precision) {
+                agreeing += 1;
+            } else {
+                runner_up = runner_up.max(*significance);
+            }
+        }
+        result.search.agreeing_starts = agreeing;
+        result.search.runner_up_significance = runner_up;
+        result
+    }
+}
+
+/// Two starts' results are the same pose when they are this many standard errors apart or
+/// closer (as row displacements).
+const SAME_POSE_ERRORS: f64 = 3.0;
+
+/// ‖r_i‖² / F_i² of every row.
+fn squared_norms(rows: &Rows, cols: usize) -> Vec<f64> {
+    rows.residual
+        .chunks_exact(cols)
+        .zip(&rows.scale)
+        .map(|(r, f)| r.iter().map(|v| v * v).sum::<f64>() / (f * f))
+        .collect()
 }
 
 /// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
@@ -283,81 +345,58 @@ fn register_cloud_problem(
     observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
     if config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none() {
-        register_from_widths(problem, init, config, observer)
+        register_from_starts(problem, init, config, observer)
     } else {
         run(problem, init, 1, config, observer)
     }
 }
 
-/// ICP from the initial guess with β₀ at several fractions of the RMS residual: the paper's
-/// β₀ (the RMS) lets the non-overlap pull a partial-overlap pair towards the all-points
-/// optimum; narrower starts ignore it but cannot travel as far. The result whose inlier
-/// cluster is most significant against the initial residuals' spread wins.
-fn register_from_widths(
+/// ICP from the initial guess by each of `sie::starts::CLOUD_STARTS`; the most significant
+/// result at its own scale wins. The background of the significance is the spread of the
+/// residuals at the initial guess (every source point).
+fn register_from_starts(
     problem: &mut CloudProblem<'_>,
     init: Matrix4<f64>,
     config: &RegistrationConfig,
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
-    let ladder: Vec<f64> = std::env::var("SIE_LADDER")
-        .ok()
-        .map(|v| v.split(',').map(|x| x.parse().unwrap()).collect())
-        .unwrap_or(vec![1.0, 1.0 / 16.0, 1.0 / 256.0]);
     let cols = problem.cols();
-    let squared_norms = |rows: &super::problem::Rows| -> Vec<f64> {
-        rows.residual
-            .chunks_exact(cols)
-            .zip(&rows.scale)
-            .map(|(r, f)| r.iter().map(|v| v * v).sum::<f64>() / (f * f))
-            .collect()
-    };
-    let initial = squared_norms(problem.evaluate_all(&init));
+    let initial = squared_norms(problem.evaluate_all(&init), cols);
     let spread = initial.iter().sum::<f64>() / initial.len().max(1) as f64;
-    let background = significance::Background {
+    let mut best = BestOfStarts::new(Background {
         spread_squared: spread.max(f64::MIN_POSITIVE),
         dims: cols,
-    };
-    let rms_component = (spread / cols as f64).sqrt();
-    let mut best: Option<(f64, RegistrationResult)> = None;
-    let mut next_iteration = 1;
-    let mut starts_run = 0;
-    for &fraction in &ladder {
-        let mut start = init;
-        // A negative fraction: an L1 start first (scale-free), then SIE with β₀ = |fraction|·RMS
-        // (0: the paper's β₀ at the L1 result).
-        if fraction <= 0.0 {
-            let l1 = RegistrationConfig {
-                cost: CostFunction::Lp { p: 1.0 },
-                ..config.clone()
-            };
-            let first = run(problem, init, next_iteration, &l1, observer.as_deref_mut())?;
-            next_iteration = first.iterations + 1;
-            start = first.transform;
-        }
+    });
+    // RMS per residual component, as the paper's β₀.
+    let rms = (spread / cols as f64).sqrt();
+    for start in CLOUD_STARTS {
+        let (from, kind) = match start.lead {
+            Lead::None => (init, StartKind::InitialGuess),
+            Lead::ScaleFree => {
+                let lead = RegistrationConfig {
+                    cost: CostFunction::Lp { p: 1.0 },
+                    translation_tolerance: LEAD_TRANSLATION_FRACTION * rms,
+                    rotation_tolerance: LEAD_ROTATION_TOLERANCE,
+                    ..config.clone()
+                };
+                let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut())?;
+                best.next_iteration = led.iterations + 1;
+                if led.stop_reason == StopReason::Cancelled {
+                    best.offer(problem, led, StartKind::ScaleFreeLead);
+                    break;
+                }
+                (led.transform, StartKind::ScaleFreeLead)
+            }
+        };
+        let kind = if start.beta_fraction < 1.0 { StartKind::NarrowBeta } else { kind };
         let start_config = RegistrationConfig {
-            initial_beta: (fraction != 1.0 && fraction != 0.0).then_some(fraction.abs() * rms_component),
+            initial_beta: (start.beta_fraction < 1.0).then_some(start.beta_fraction * rms),
             ..config.clone()
         };
-        let mut result = run(problem, start, next_iteration, &start_config, observer.as_deref_mut())?;
-        starts_run += 1;
-        next_iteration = result.iterations + 1;
-        let mut norms = squared_norms(problem.rows());
-        let significance = significance::most_significant(&mut norms, &background).significance;
-        if std::env::var("SIE_LADDER_DEBUG").is_ok() {
-            eprintln!("  ladder {fraction}: significance {significance:.1} sigma {:?} P {:.3}", result.sigma, result.inlier_fraction);
-        }
-        let cancelled = result.stop_reason == StopReason::Cancelled;
-        if cancelled || best.as_ref().is_none_or(|(s, _)| significance > *s) {
-            result.search.significance = significance;
-            best = Some((significance, result));
-        }
-        if cancelled {
+        let result = run(problem, from, best.next_iteration, &start_config, observer.as_deref_mut())?;
+        if !best.offer(problem, result, kind) {
             break;
         }
     }
-    let (_, mut result) = best.expect("at least one start ran");
-    result.iterations = next_iteration - 1;
-    result.search.starts_run = starts_run;
-    Ok(result)
+    Ok(best.finish(problem))
 }
-

@@ -17,6 +17,7 @@ pub mod hypotheses;
 pub mod schedule;
 pub mod shape;
 pub mod significance;
+pub mod starts;
 
 pub use histogram::HistogramModel;
 use shape::GeneralisedGaussian;

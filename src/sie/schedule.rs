@@ -15,6 +15,13 @@ const LEVEL_TOLERANCE: f64 = 0.01;
 const MAX_LEVEL_UPDATES: u32 = 5;
 /// δ of eq. (regprob3GGD) relative to σ+β: bounds the weight max(‖r‖, δ)^(p-2) for p < 2.
 const SHAPE_DELTA: f64 = 1e-3;
+/// In the final round, an update smaller than this fraction of the pose's standard error
+/// (`precision`) is below what the data can resolve: the registration has converged. ICP's
+/// updates can keep changing at that level (matches and histogram bins flip), which no fixed
+/// tolerance of 1e-6 can wait out.
+const PRECISION_FRACTION: f64 = 0.1;
+/// Degrees of freedom of a rigid transform.
+const RIGID_DOF: f64 = 6.0;
 
 /// How β starts and shrinks (§4.3).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,6 +56,8 @@ pub enum Convergence {
     Tolerance,
     /// Model frozen: also stop when the iterates return to where they were two updates ago.
     ToleranceOrCycle,
+    /// Final round: the update was below the pose's precision (stop).
+    Resolved,
 }
 
 /// SIE's state across the updates of one registration.
@@ -59,6 +68,8 @@ pub struct Schedule {
     phase: Phase,
     level_updates: u32,
     started: bool,
+    /// Σ P(I|R_i) of the last update: the effective number of inlier rows.
+    inlier_mass: f64,
 }
 
 impl Schedule {
@@ -69,6 +80,7 @@ impl Schedule {
             phase: Phase::Annealing,
             level_updates: 0,
             started: false,
+            inlier_mass: 0.0,
         }
     }
 
@@ -102,17 +114,6 @@ impl Schedule {
                 None => estimator.residual_rms(normalised, cols),
             };
             estimator.set_beta(&beta);
-            if let Ok(f) = std::env::var("SIE_BETA0_SCALE") {
-                let f: f64 = f.parse().unwrap();
-                let scaled: Vec<f64> = beta.iter().map(|b| b * f).collect();
-                estimator.set_beta(&scaled);
-            }
-            if let Ok(f) = std::env::var("SIE_BETA0_FIT") {
-                let f: f64 = f.parse().unwrap();
-                estimator.fit(normalised, cols);
-                let sigmas: Vec<f64> = estimator.models().iter().map(|m| f * m.shape.sigma).collect();
-                estimator.set_beta(&sigmas);
-            }
         }
         match self.phase {
             Phase::Annealing => estimator.fit(normalised, cols),
@@ -124,6 +125,8 @@ impl Schedule {
             Phase::Frozen => {}
         }
         estimator.probabilities(normalised, cols, probabilities);
+        self.inlier_mass = probabilities.iter().sum();
+        let estimator = &self.estimator;
         let p = estimator.mean_shape();
         let delta = (SHAPE_DELTA * self.width()).max(1e-12);
         for (i, (w, (&probability, &scale))) in weights
@@ -159,6 +162,15 @@ impl Schedule {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// Standard error of the pose as a displacement of the rows (normalised RMS): a weighted
+    /// least-squares fit of 6 parameters to rows with noise σ moves the fitted rows by
+    /// σ·√(6/n) RMS, with n = Σ P(I|R_i) the effective number of inliers.
+    pub fn precision(&self) -> f64 {
+        let models = self.estimator.models();
+        let sigma = (models.iter().map(|m| m.shape.sigma.powi(2)).sum::<f64>() / models.len().max(1) as f64).sqrt();
+        sigma * (RIGID_DOF / self.inlier_mass.max(1.0)).sqrt()
+    }
+
     /// Advances the schedule after an update. `below_tolerance`: the update was below the
     /// caller's tolerances; `displacement`: how far it moved the rows (normalised RMS). A level
     /// ends when the update is small against the model width σ+β (or after
@@ -168,8 +180,7 @@ impl Schedule {
         match self.phase {
             Phase::Annealing => {
                 self.level_updates += 1;
-                let cap = std::env::var("SIE_LEVEL_CAP").ok().and_then(|v| v.parse().ok()).unwrap_or(MAX_LEVEL_UPDATES);
-                if settled || self.level_updates >= cap {
+                if settled || self.level_updates >= MAX_LEVEL_UPDATES {
                     self.level_updates = 0;
                     if self.estimator.beta_negligible(self.beta.stop_ratio) {
                         self.phase = Phase::Final;
@@ -179,6 +190,7 @@ impl Schedule {
                 }
                 Convergence::NotYet
             }
+            _ if displacement <= PRECISION_FRACTION * self.precision() => Convergence::Resolved,
             Phase::Final => {
                 if settled {
                     self.phase = Phase::Frozen;

@@ -104,6 +104,30 @@ pub fn most_significant(squared_norms: &mut [f64], background: &Background) -> C
     best
 }
 
+/// The cluster a fitted noise model describes: the residuals within the radius that holds
+/// 99 % of Gaussian inliers of per-component scale σ (ρ² = σ²·χ²_m(0.99), Wilson–Hilferty),
+/// and its significance against the background. Used to choose between SIE's results from
+/// several starts: each is judged at the scale its own fit claims, so a model of a tight
+/// cluster scores by that cluster, and a broad fit to the outliers by a radius as wide as the
+/// background (nothing). The best radius of `most_significant` instead rewards whatever is
+/// tight at a wrong pose too: a LiDAR pair's ground plane stays tight under point-to-plane
+/// residuals when the pose slides along it.
+pub fn at_scale(squared_norms: &[f64], background: &Background, sigma: f64) -> Cluster {
+    let m = background.dims.max(1) as f64;
+    // χ²_m at 99 % (z = 2.326) by Wilson–Hilferty: 6.6 for m = 1, 11.3 for m = 3.
+    let quantile = m * (1.0 - 2.0 / (9.0 * m) + 2.326 * (2.0 / (9.0 * m)).sqrt()).powi(3);
+    let radius_squared = sigma * sigma * quantile;
+    let count = squared_norms.iter().filter(|&&v| v <= radius_squared).count();
+    let significance = background
+        .log_probability(radius_squared)
+        .map_or(0.0, |log_p| tail_bound(count as f64, squared_norms.len() as f64, log_p));
+    Cluster {
+        significance,
+        radius: radius_squared.sqrt(),
+        count,
+    }
+}
+
 /// Cells of the geometric grid of radii: two per octave of ρ² (factor √2 in ρ) below L², 60
 /// octaves deep (smaller clusters share the last cell).
 const BINS: usize = 120;
