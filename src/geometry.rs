@@ -98,6 +98,19 @@ pub fn transform_change(old: &Matrix4<f64>, new: &Matrix4<f64>, anchor: &Point) 
     (rotation_angle(&dr), moved)
 }
 
+/// Per-axis median of a point set (origin for none): a centre that a few far-off points do
+/// not move.
+pub fn median_point(points: &[Point]) -> Point {
+    if points.is_empty() {
+        return [0.0; 3];
+    }
+    std::array::from_fn(|axis| {
+        let mut values: Vec<f64> = points.iter().map(|p| p[axis]).collect();
+        let mid = values.len() / 2;
+        *values.select_nth_unstable_by(mid, f64::total_cmp).1
+    })
+}
+
 /// Centroid of a point set (origin for none).
 pub fn centroid(points: &[Point]) -> Point {
     if points.is_empty() {
@@ -165,6 +178,11 @@ pub struct Solve {
     pub transform: Matrix4<f64>,
     /// Some direction of the problem was not constrained by the data.
     pub rank_deficient: bool,
+    /// How well the weighted data constrain the pose, 0 (not at all in some direction) to 1
+    /// (equally in all): point-to-plane, the smallest over the largest eigenvalue of the
+    /// normal matrix with rotations scaled to lengths; point-to-point, the second singular
+    /// value over the first of the cross-covariance (planar data still fix a rotation).
+    pub conditioning: f64,
 }
 
 /// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
@@ -202,6 +220,15 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
     Some(Solve {
         transform: from_parts(&r, &t),
         rank_deficient,
+        conditioning: if largest > 0.0 {
+            {
+                let mut sorted = [s[0], s[1], s[2]];
+                sorted.sort_by(|a, b| b.total_cmp(a));
+                sorted[1] / sorted[0]
+            }
+        } else {
+            0.0
+        },
     })
 }
 
@@ -270,6 +297,7 @@ pub fn point_to_plane_step(
     Some(Solve {
         transform: orthonormalised(&(delta * current)),
         rank_deficient,
+        conditioning: (eigen.eigenvalues.min() / largest).max(0.0),
     })
 }
 

@@ -89,6 +89,11 @@ pub struct RegisterArgs {
     /// β is multiplied by this after each convergence, in (0, 1).
     #[arg(long, value_name = "FACTOR", default_value_t = defaults().beta_shrink, help_heading = "Method")]
     pub beta_shrink: f64,
+    /// Where SIE starts: `automatic` runs SIE from the initial guess with the paper's β₀, with a
+    /// narrow β₀ and after a scale-free (L1) lead, and keeps the most significant result;
+    /// `initial-guess` runs the paper's method once (faster; for good guesses, e.g. odometry).
+    #[arg(long, value_enum, default_value_t = StartsArg::Automatic, help_heading = "Method")]
+    pub starts: StartsArg,
 
     /// Initial guess of T_target_source from a file: 16 numbers (4×4 row-major) or 12 (the top
     /// 3×4 rows); the `-o` output of another run works. Default: identity.
@@ -238,6 +243,12 @@ pub enum NoiseArg {
 }
 
 #[derive(Clone, Copy, ValueEnum)]
+pub enum StartsArg {
+    Automatic,
+    InitialGuess,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
 pub enum HistogramArg {
     Pooled,
     PerColumn,
@@ -315,6 +326,10 @@ impl RegisterArgs {
             },
             initial_beta: (self.beta0 != 0.0).then_some(self.beta0),
             beta_shrink: self.beta_shrink,
+            starts: match self.starts {
+                StartsArg::Automatic => sie::Starts::Automatic,
+                StartsArg::InitialGuess => sie::Starts::InitialGuess,
+            },
             max_correspondences: self.max_correspondences,
             normal_neighbours: self.normal_neighbours,
             threads: self.threads,

@@ -37,9 +37,9 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
 /// receives the number of histograms.
 ///
 /// Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
-/// fit), INVALID_ARGUMENT (cols is 0, bad scale or beta, or a scaled residual above 1e140 in
-/// magnitude, whose square would overflow in the fit), NON_FINITE_INPUT (names the index),
-/// BUFFER_TOO_SMALL, BUSY.
+/// fit), INVALID_ARGUMENT (cols is 0, bad scale or beta), NON_FINITE_INPUT (names the index),
+/// BUFFER_TOO_SMALL, BUSY. Residuals of any finite magnitude are accepted: the answer does not
+/// depend on their unit, and a residual beyond 1e100 times the typical one is an outlier.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

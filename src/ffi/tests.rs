@@ -100,6 +100,7 @@ fn sample_result() -> RegistrationResult {
         histograms: vec![histogram()],
         times: Default::default(),
         search: Default::default(),
+        quality: Default::default(),
         trace: vec![TraceEntry {
             iteration: 1,
             annealing: true,

@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::problem::{Problem, Rows};
 use super::{
-    Error, Observer, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
+    Error, Observer, Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
@@ -127,6 +127,20 @@ impl Weighting {
     }
 }
 
+/// Rounding of coordinates of this magnitude, as a normalised residual (divided by the median
+/// row scale F): a few hundred ulps, far below any measured noise.
+fn resolution(magnitude: f64, row_scales: &[f64]) -> f64 {
+    const ULPS: f64 = 1024.0;
+    let mut scales = row_scales.to_vec();
+    let mid = scales.len() / 2;
+    let typical = if scales.is_empty() {
+        1.0
+    } else {
+        *scales.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    ULPS * f64::EPSILON * magnitude / typical
+}
+
 fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
     out.clear();
     out.extend(
@@ -149,7 +163,7 @@ pub(crate) fn run(
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
-    let anchor = problem.source_centroid();
+    let anchor = problem.source_anchor();
     let mut transform = init;
     // The transform before the last update, for the 2-cycle test below.
     let mut previous = init;
@@ -157,6 +171,7 @@ pub(crate) fn run(
     let mut work = Workspace::default();
     let mut stop = StopReason::IterationLimit;
     let mut rank_deficient = false;
+    let mut conditioning = 0.0;
     let mut iterations = first_iteration.saturating_sub(1);
     let mut trace = Vec::new();
     let (index, normals) = problem.setup_seconds();
@@ -191,6 +206,11 @@ pub(crate) fn run(
             break;
         }
         normalise(rows, cols, &mut work.normalised);
+        if iteration == first_iteration {
+            if let Weighting::Sie(schedule) = &mut weighting {
+                schedule.set_resolution(resolution(problem.coordinate_magnitude(), &rows.scale));
+            }
+        }
         weighting.update(rows, cols, &mut work);
         lap(&mut times.weighting);
         let solve = problem.solve(&transform, &work.weights);
@@ -207,6 +227,7 @@ pub(crate) fn run(
         previous = transform;
         transform = solve.transform;
         rank_deficient = solve.rank_deficient;
+        conditioning = solve.conditioning;
         if config.record_trace || observer.is_some() {
             let entry = trace_entry(
                 iteration,
@@ -269,7 +290,10 @@ pub(crate) fn run(
         probabilities[s] = p;
         correspondences[s] = rows.target[i] as i64;
         weight_sum += p;
-        weighted_square += p * row_norm(&rows.residual, cols, i).powi(2);
+        if p > 0.0 {
+            // A zero-probability garbage row may not square finitely.
+            weighted_square += p * row_norm(&rows.residual, cols, i).powi(2);
+        }
     }
     let ModelSummary {
         sigma,
@@ -308,6 +332,11 @@ pub(crate) fn run(
             significance: 0.0,
             agreeing_starts: 1,
             runner_up_significance: 0.0,
+        },
+        quality: Quality {
+            conditioning,
+            margin: f64::INFINITY,
+            ..Quality::default()
         },
     })
 }

@@ -7,6 +7,7 @@ mod driver;
 mod input;
 mod pipeline;
 mod problem;
+mod units;
 
 use std::ops::ControlFlow;
 
@@ -262,6 +263,42 @@ pub struct RegistrationResult {
     pub times: StageTimes,
     /// Which start decided the result, and what the search found.
     pub search: SearchReport,
+    /// How far to trust the result.
+    pub quality: Quality,
+}
+
+/// A verdict on a registration from the evidence SIE has (issue: "converged" must mean right).
+/// `converged` only says the iteration settled; this says whether the pose it settled at is
+/// supported by the data.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Verdict {
+    /// Every test passed: a significant inlier cluster, a pose the inliers constrain in every
+    /// direction, no other start ending elsewhere nearly as significant, and (ICP) inlier
+    /// residuals no wider than the points' spacing.
+    Good,
+    /// The pose is supported but some evidence speaks against it (see `Quality`): check it.
+    #[default]
+    Doubtful,
+    /// No inlier cluster stands out from chance at the fitted scale: the data do not support
+    /// this pose.
+    Unsupported,
+}
+
+/// The evidence behind the verdict.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Quality {
+    pub verdict: Verdict,
+    /// Significance of the inlier cluster at the fitted scale (nats, `sie::significance`).
+    pub significance: f64,
+    /// How well the weighted inliers constrain the pose at the last update, 0–1
+    /// (`geometry::Solve::conditioning`).
+    pub conditioning: f64,
+    /// Fitted σ over the typical distance between neighbouring target points (ICP; 0 for
+    /// correspondences, which have no spacing).
+    pub sigma_to_spacing: f64,
+    /// Significance of the result over that of the best start that ended elsewhere (∞ when
+    /// none did).
+    pub margin: f64,
 }
 
 /// Where the returned transform came from.

@@ -8,9 +8,10 @@ use super::driver::run;
 use super::input::{
     checked_initial_guess, expand, finite_indices, is_finite, noise_sigmas, require_finite, require_points,
 };
+use super::units::Units;
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
 use super::{
-    Hooks, Metric, Observer, TraceEntry, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
+    Hooks, Metric, Observer, TraceEntry, Verdict, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
 };
 use crate::cost::CostFunction;
 use crate::sie::hypotheses::{self, Pairs};
@@ -61,14 +62,73 @@ pub fn register_correspondences(
     require_finite("target", target)?;
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
-    let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
-    let mut result = if config.cost == CostFunction::Sie && config.starts == Starts::Automatic {
-        register_from_hypotheses(&mut problem, source, target, init, config, hooks.observer)?
+    let units = Units::choose(source, target, &sigma_slices(&source_sigma, &target_sigma));
+    let mut result = if units.is_identity() {
+        let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
+        correspondences_on(&mut problem, source, target, init, config, hooks.observer)?
     } else {
-        run(&mut problem, init, 1, config, hooks.observer)?
+        let (source, target) = (units.points(source), units.points(target));
+        let mut problem =
+            CorrespondenceProblem::new(&source, &target, units.sigmas(source_sigma), units.sigmas(target_sigma));
+        let mut result = in_units(&units, hooks.observer, |observer| {
+            correspondences_on(&mut problem, &source, &target, units.transform_in(&init), config, observer)
+        })?;
+        units.result_out(&mut result);
+        result
     };
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
+}
+
+/// Correspondence registration on a built problem: SIE from the hypothesis stage's starts, or
+/// the paper's method (or a baseline) from the initial guess.
+fn correspondences_on(
+    problem: &mut CorrespondenceProblem<'_>,
+    source: &[Point],
+    target: &[Point],
+    init: Matrix4<f64>,
+    config: &RegistrationConfig,
+    observer: Option<&mut Observer<'_>>,
+) -> Result<RegistrationResult, Error> {
+    if config.cost == CostFunction::Sie && config.starts == Starts::Automatic {
+        register_from_hypotheses(problem, source, target, init, config, observer)
+    } else {
+        let scales = problem.rows().scale.clone();
+        let evidence = Evidence {
+            background: Pairs {
+                source,
+                target,
+                scales: &scales,
+            }
+            .background(),
+            spacing: None,
+        };
+        let mut result = run(problem, init, 1, config, observer)?;
+        judged_alone(&evidence, problem, &mut result);
+        Ok(result)
+    }
+}
+
+fn sigma_slices<'a>(source: &'a Option<Vec<f64>>, target: &'a Option<Vec<f64>>) -> Vec<&'a [f64]> {
+    [source, target].into_iter().flatten().map(Vec::as_slice).collect()
+}
+
+/// Runs `register` in changed units with an observer that sees every trace entry in the
+/// caller's units.
+fn in_units<R>(
+    units: &Units,
+    observer: Option<&mut Observer<'_>>,
+    register: impl FnOnce(Option<&mut Observer<'_>>) -> R,
+) -> R {
+    let Some(outer) = observer else {
+        return register(None);
+    };
+    let mut converted = |entry: &TraceEntry| {
+        let mut entry = entry.clone();
+        units.entry_out(&mut entry);
+        outer(&entry)
+    };
+    register(Some(&mut converted))
 }
 
 /// Starts whose search significance is at least this fraction of the best one's are refined
@@ -99,10 +159,18 @@ fn register_from_hypotheses(
     if best_significance <= 0.0 {
         // No pose stands out from chance: the paper's method from the initial guess.
         let mut result = run(problem, init, 1, config, observer)?;
+        let evidence = Evidence {
+            background: pairs.background(),
+            spacing: None,
+        };
+        judged_alone(&evidence, problem, &mut result);
         result.search.hypotheses = search.samples as u32;
         return Ok(result);
     }
-    let mut best = BestOfStarts::new(pairs.background());
+    let mut best = BestOfStarts::new(Evidence {
+        background: pairs.background(),
+        spacing: None,
+    });
     let starts = search
         .candidates
         .iter()
@@ -131,7 +199,7 @@ fn register_from_hypotheses(
 /// The most significant result of SIE from several starts on one problem, each judged on
 /// every row at the scale its own fit claims (`significance::at_scale`).
 struct BestOfStarts {
-    background: Background,
+    evidence: Evidence,
     best: Option<(f64, RegistrationResult)>,
     /// Every start's final transform, significance and precision (pose standard error as a
     /// row displacement).
@@ -142,9 +210,9 @@ struct BestOfStarts {
 }
 
 impl BestOfStarts {
-    fn new(background: Background) -> Self {
+    fn new(evidence: Evidence) -> Self {
         BestOfStarts {
-            background,
+            evidence,
             best: None,
             ends: Vec::new(),
             next_iteration: 1,
@@ -157,11 +225,9 @@ impl BestOfStarts {
     fn offer(&mut self, problem: &dyn Problem, mut result: RegistrationResult, start: StartKind) -> bool {
         self.starts_run += 1;
         self.next_iteration = result.iterations + 1;
-        let norms = squared_norms(problem.rows(), problem.cols());
-        let sigma = (result.sigma.iter().map(|s| s * s).sum::<f64>() / result.sigma.len().max(1) as f64).sqrt();
-        let cluster = significance::at_scale(&norms, &self.background, sigma);
+        let cluster = self.evidence.assess(problem, &mut result);
         let significance = cluster.significance;
-        let precision = sigma * (6.0 / (cluster.count.max(1) as f64)).sqrt();
+        let precision = fitted_sigma(&result) * (6.0 / (cluster.count.max(1) as f64)).sqrt();
         self.ends.push((result.transform, significance, precision));
         result.search.start = start;
         result.search.significance = significance;
@@ -181,8 +247,9 @@ impl BestOfStarts {
         result.iterations = self.next_iteration - 1;
         result.search.starts_run = self.starts_run;
         let (mut agreeing, mut runner_up) = (0, 0.0f64);
+        let typical_scale = median(problem.rows().scale.clone());
         for (transform, significance, precision) in &self.ends {
-            let apart = problem.displacement(&result.transform, transform);
+            let apart = moved_apart(problem.source_points(), &result.transform, transform) / typical_scale;
             let best_precision = self
                 .ends
                 .iter()
@@ -196,13 +263,104 @@ impl BestOfStarts {
         }
         result.search.agreeing_starts = agreeing;
         result.search.runner_up_significance = runner_up;
+        result.quality.margin = if runner_up > 0.0 {
+            result.quality.significance / runner_up
+        } else {
+            f64::INFINITY
+        };
+        result.quality.verdict = verdict(&result);
         result
     }
+}
+
+/// What a result is judged by: the background of its significance, and (ICP) the typical
+/// spacing of the target points as a normalised residual.
+struct Evidence {
+    background: Background,
+    spacing: Option<f64>,
+}
+
+impl Evidence {
+    /// ICP: the background is the spread of the residuals at the initial guess (every source
+    /// point), the spacing the median distance between neighbouring target points.
+    fn of_clouds(problem: &mut CloudProblem<'_>, init: &Matrix4<f64>) -> Self {
+        let cols = problem.cols();
+        let initial = squared_norms(problem.evaluate_all(init), cols);
+        let spread = initial.iter().sum::<f64>() / initial.len().max(1) as f64;
+        let typical_scale = median(problem.rows().scale.clone());
+        Evidence {
+            background: Background {
+                spread_squared: spread.max(f64::MIN_POSITIVE),
+                dims: cols,
+            },
+            spacing: Some(problem.target_spacing() / typical_scale),
+        }
+    }
+
+    /// Fills `result.quality` but for the verdict and the margin (which need every start) and
+    /// returns the cluster at the result's fitted scale. The problem's rows must be the result's.
+    fn assess(&self, problem: &dyn Problem, result: &mut RegistrationResult) -> significance::Cluster {
+        let norms = squared_norms(problem.rows(), problem.cols());
+        let sigma = fitted_sigma(result);
+        let cluster = significance::at_scale(&norms, &self.background, sigma);
+        result.quality.significance = cluster.significance;
+        result.quality.sigma_to_spacing = self.spacing.map_or(0.0, |spacing| {
+            if spacing > 0.0 { sigma / spacing } else { f64::INFINITY }
+        });
+        cluster
+    }
+}
+
+/// σ of a result (the RMS over its histograms).
+fn fitted_sigma(result: &RegistrationResult) -> f64 {
+    (result.sigma.iter().map(|s| s * s).sum::<f64>() / result.sigma.len().max(1) as f64).sqrt()
+}
+
+/// Conditioning below this: some direction of the pose rests on a thousandth of the
+/// constraint of the best-constrained one (inliers on one plane or one line).
+const MIN_CONDITIONING: f64 = 1e-3;
+/// A start that ended elsewhere with more than half the significance makes the result a
+/// close call.
+const MIN_MARGIN: f64 = 2.0;
+
+/// The verdict from the evidence in `result.quality` and the fitted histograms.
+fn verdict(result: &RegistrationResult) -> Verdict {
+    let quality = &result.quality;
+    if !(quality.significance > 0.0) {
+        return Verdict::Unsupported;
+    }
+    let peak = result.histograms.iter().all(|h| h.peak_found);
+    let good = peak
+        && quality.conditioning >= MIN_CONDITIONING
+        && quality.margin >= MIN_MARGIN
+        && quality.sigma_to_spacing <= 1.0;
+    if good { Verdict::Good } else { Verdict::Doubtful }
 }
 
 /// Two starts' results are the same pose when they are this many standard errors apart or
 /// closer (as row displacements).
 const SAME_POSE_ERRORS: f64 = 3.0;
+
+/// RMS distance between where two transforms put the source points (at most 1024 of them,
+/// evenly strided), in input units.
+fn moved_apart(points: &[Point], a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
+    let step = points.len().div_ceil(1024).max(1);
+    let difference = a - b;
+    let (sum, count) = points.iter().step_by(step).fold((0.0, 0usize), |(sum, n), p| {
+        let d = crate::geometry::transform_point(&difference, p);
+        (sum + d[0] * d[0] + d[1] * d[1] + d[2] * d[2], n + 1)
+    });
+    if count == 0 { 0.0 } else { (sum / count as f64).sqrt() }
+}
+
+/// Median (1 for none).
+fn median(mut values: Vec<f64>) -> f64 {
+    if values.is_empty() {
+        return 1.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+}
 
 /// ‖r_i‖² / F_i² of every row.
 fn squared_norms(rows: &Rows, cols: usize) -> Vec<f64> {
@@ -321,17 +479,37 @@ pub fn register_clouds(
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
-    let mut problem = CloudProblem::new(
-        source,
-        target,
-        target_normals,
-        source_sigma,
-        target_sigma,
-        config,
-        workers,
-    )
-    .map_err(Error::InvalidArgument)?;
-    let mut result = register_cloud_problem(&mut problem, init, config, hooks.observer)?;
+    let units = Units::choose(source, target, &sigma_slices(&source_sigma, &target_sigma));
+    let mut result = if units.is_identity() {
+        let mut problem = CloudProblem::new(
+            source,
+            target,
+            target_normals,
+            source_sigma,
+            target_sigma,
+            config,
+            workers,
+        )
+        .map_err(Error::InvalidArgument)?;
+        register_cloud_problem(&mut problem, init, config, hooks.observer)?
+    } else {
+        let (source, target) = (units.points(source), units.points(target));
+        let mut problem = CloudProblem::new(
+            &source,
+            &target,
+            target_normals,
+            units.sigmas(source_sigma),
+            units.sigmas(target_sigma),
+            config,
+            workers,
+        )
+        .map_err(Error::InvalidArgument)?;
+        let mut result = in_units(&units, hooks.observer, |observer| {
+            register_cloud_problem(&mut problem, units.transform_in(&init), config, observer)
+        })?;
+        units.result_out(&mut result);
+        result
+    };
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
@@ -347,8 +525,19 @@ fn register_cloud_problem(
     if config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none() {
         register_from_starts(problem, init, config, observer)
     } else {
-        run(problem, init, 1, config, observer)
+        let evidence = Evidence::of_clouds(problem, &init);
+        let mut result = run(problem, init, 1, config, observer)?;
+        judged_alone(&evidence, problem, &mut result);
+        Ok(result)
     }
+}
+
+/// The quality of a result that had no other start to compare with.
+fn judged_alone(evidence: &Evidence, problem: &dyn Problem, result: &mut RegistrationResult) {
+    evidence.assess(problem, result);
+    result.search.significance = result.quality.significance;
+    result.quality.margin = f64::INFINITY;
+    result.quality.verdict = verdict(result);
 }
 
 /// ICP from the initial guess by each of `sie::starts::CLOUD_STARTS`; the most significant
@@ -361,14 +550,9 @@ fn register_from_starts(
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
-    let initial = squared_norms(problem.evaluate_all(&init), cols);
-    let spread = initial.iter().sum::<f64>() / initial.len().max(1) as f64;
-    let mut best = BestOfStarts::new(Background {
-        spread_squared: spread.max(f64::MIN_POSITIVE),
-        dims: cols,
-    });
-    // RMS per residual component, as the paper's β₀.
-    let rms = (spread / cols as f64).sqrt();
+    let evidence = Evidence::of_clouds(problem, &init);
+    let rms = (evidence.background.spread_squared / cols as f64).sqrt();
+    let mut best = BestOfStarts::new(evidence);
     for start in CLOUD_STARTS {
         let (from, kind) = match start.lead {
             Lead::None => (init, StartKind::InitialGuess),

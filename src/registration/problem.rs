@@ -51,8 +51,14 @@ pub trait Problem {
     /// Residual dimensions m.
     fn cols(&self) -> usize;
     fn source_count(&self) -> usize;
-    /// Centroid of the source points (where update sizes are measured).
-    fn source_centroid(&self) -> Point;
+    /// The source points as given.
+    fn source_points(&self) -> &[Point];
+    /// Typical coordinate magnitude of the source points, the median of max |x|, |y|, |z|
+    /// (sets the arithmetic's resolution; a garbage point far out does not).
+    fn coordinate_magnitude(&self) -> f64;
+    /// Centre of the source points (where update sizes are measured): the per-axis median,
+    /// which a far-off garbage point does not move.
+    fn source_anchor(&self) -> Point;
     /// (Re)matches at `transform` and fills the rows used for fitting.
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows;
     /// The rows of the last `linearise`.
@@ -87,6 +93,7 @@ fn rms_displacement(sources: &[Point], scales: &[f64], old: &Matrix4<f64>, new: 
         return 0.0;
     }
     let difference = new - old;
+    // A garbage point far out (weight 0 anyway) must not make the size infinite.
     let sum: f64 = sources
         .iter()
         .zip(scales)
@@ -94,8 +101,19 @@ fn rms_displacement(sources: &[Point], scales: &[f64], old: &Matrix4<f64>, new: 
             let d = transform_point(&difference, a);
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (f * f)
         })
+        .filter(|v| v.is_finite())
         .sum();
     (sum / sources.len() as f64).sqrt()
+}
+
+/// Median over the points of their largest coordinate magnitude.
+fn typical_magnitude(points: &[Point]) -> f64 {
+    if points.is_empty() {
+        return 0.0;
+    }
+    let mut magnitudes: Vec<f64> = points.iter().map(|p| p.iter().fold(0.0f64, |m, v| m.max(v.abs()))).collect();
+    let mid = magnitudes.len() / 2;
+    *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
@@ -139,8 +157,16 @@ impl Problem for CorrespondenceProblem<'_> {
         self.source.len()
     }
 
-    fn source_centroid(&self) -> Point {
-        crate::geometry::centroid(self.source)
+    fn source_points(&self) -> &[Point] {
+        self.source
+    }
+
+    fn coordinate_magnitude(&self) -> f64 {
+        typical_magnitude(self.source)
+    }
+
+    fn source_anchor(&self) -> Point {
+        crate::geometry::median_point(self.source)
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {
@@ -584,6 +610,26 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
     chosen
 }
 
+impl CloudProblem<'_> {
+    /// Median distance from a target point to its nearest other target point (over at most
+    /// 1024 evenly strided points), input units.
+    pub fn target_spacing(&self) -> f64 {
+        let step = self.target.len().div_ceil(1024).max(1);
+        let mut gaps: Vec<f64> = self
+            .target
+            .iter()
+            .step_by(step)
+            .map(|p| self.index.nearest_two(p).2)
+            .filter(|d| d.is_finite())
+            .collect();
+        if gaps.is_empty() {
+            return 0.0;
+        }
+        let mid = gaps.len() / 2;
+        *gaps.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+}
+
 impl Problem for CloudProblem<'_> {
     fn cols(&self) -> usize {
         match self.metric {
@@ -596,8 +642,16 @@ impl Problem for CloudProblem<'_> {
         self.source.len()
     }
 
-    fn source_centroid(&self) -> Point {
-        crate::geometry::centroid(self.source)
+    fn source_points(&self) -> &[Point] {
+        self.source
+    }
+
+    fn coordinate_magnitude(&self) -> f64 {
+        typical_magnitude(self.source)
+    }
+
+    fn source_anchor(&self) -> Point {
+        crate::geometry::median_point(self.source)
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {

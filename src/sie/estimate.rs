@@ -1,11 +1,8 @@
 //! SIE on its own (§4): the inlier probability of every row of a residual matrix, for callers
 //! that do their own estimation (the C ABI's `sie_estimate_inliers`).
 
-use super::{HistogramModel, SieEstimator, SieOptions};
+use super::{ARITHMETIC_LIMIT, HistogramModel, SieEstimator, SieOptions};
 use crate::error::Error;
-
-/// Largest residual magnitude `estimate_inliers` accepts (see there).
-const MAX_RESIDUAL: f64 = 1e140;
 
 /// Standalone SIE fits a histogram: below this many rows there is no peak to fit, and the
 /// answer (every P at its cap) would mean nothing.
@@ -24,8 +21,8 @@ pub struct InlierEstimate {
 
 /// SIE on a residual matrix (row-major rows × cols), each row divided by `row_scales[i]` when
 /// given; β is the regulariser (0 for none). Fits with k = k₀, then adapts k from P(I|H) and
-/// refits (§4.5), and returns P(I|R_i) per row. Scaled residuals above 1e140 in magnitude are
-/// refused (their squares would overflow in the fit).
+/// refits (§4.5), and returns P(I|R_i) per row. The answer does not depend on the residuals'
+/// unit (extreme magnitudes are fitted in a unit of their own).
 pub fn estimate_inliers(
     residuals: &[f64],
     cols: usize,
@@ -77,21 +74,24 @@ pub fn estimate_inliers(
                 .collect()
         }
     };
-    // Squares of the residuals are summed (RMS start, histogram moments): beyond this they
-    // overflow and the fit would end with an infinite σ.
-    if let Some(i) = normalised.iter().position(|v| v.abs() > MAX_RESIDUAL) {
-        return Err(Error::InvalidArgument(format!(
-            "residual {i} is {:e} after row scaling; magnitudes above {MAX_RESIDUAL:e} cannot be squared \
-             and summed without overflow (rescale the residuals)",
-            normalised[i]
-        )));
-    }
     // After every argument check, so that a bad argument is reported as such.
     if rows < MIN_ESTIMATE_ROWS {
         return Err(Error::TooFewPoints(format!(
             "residual rows: {rows} given, at least {MIN_ESTIMATE_ROWS} needed"
         )));
     }
+    // Residuals of extreme magnitude are fitted in a unit of their own (the answer does not
+    // depend on units; squares of 1e-160 or 1e160 would not survive), β with them; a β wider
+    // than any residual by far puts every residual at the model's centre.
+    let unit = residual_unit(&normalised);
+    let scaled: Vec<f64>;
+    let normalised = if unit == 1.0 {
+        normalised
+    } else {
+        scaled = normalised.iter().map(|r| r / unit).collect();
+        scaled
+    };
+    let beta = (beta / unit).min(ARITHMETIC_LIMIT);
     let mut sie = SieEstimator::new(options.clone());
     sie.prepare(&normalised, cols);
     sie.set_beta(&[beta]);
@@ -100,10 +100,32 @@ pub fn estimate_inliers(
     sie.fit(&normalised, cols);
     let mut probabilities = vec![0.0; rows];
     let prior = sie.probabilities(&normalised, cols, &mut probabilities);
+    let mut models = sie.models().to_vec();
+    for model in &mut models {
+        model.shape.sigma *= unit;
+        model.shape.mu *= unit;
+        model.beta *= unit;
+        model.lo *= unit;
+        model.hi *= unit;
+    }
     Ok(InlierEstimate {
         probabilities,
-        models: sie.models().to_vec(),
+        models,
         prior,
     })
+}
+
+/// Residual magnitudes in [1/SAFE, SAFE] are fitted as given (results bit for bit as before).
+const SAFE: f64 = 1e30;
+
+/// 1, or the median residual magnitude when that lies outside the safe range.
+fn residual_unit(residuals: &[f64]) -> f64 {
+    let mut magnitudes: Vec<f64> = residuals.iter().map(|r| r.abs()).filter(|r| *r > 0.0).collect();
+    if magnitudes.is_empty() {
+        return 1.0;
+    }
+    let mid = magnitudes.len() / 2;
+    let median = *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1;
+    if (1.0 / SAFE..=SAFE).contains(&median) { 1.0 } else { median }
 }
 

@@ -143,6 +143,14 @@ impl HistogramModel {
         samples: impl Fn() -> I,
     ) {
         self.samples_total = samples().count();
+        let (low, high) = samples().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(x), h.max(x)));
+        if low == high {
+            // Every sample the same (exact data, or one value repeated): each is as likely an
+            // inlier as the cap allows, whatever μ = 0 of a pooled |r| histogram assumes.
+            self.shape.mu = low;
+            self.fit_without_spread(options);
+            return;
+        }
         if self.shape.sigma + self.beta <= 0.0 || (self.shape.sigma + self.beta).is_nan() {
             // The last data had no spread; this data may (e.g. round-off after a perfect fit).
             // Restart from the all-inlier ML estimate (§4.5) instead of a zero-width model.

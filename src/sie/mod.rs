@@ -161,6 +161,8 @@ impl SieOptions {
 pub struct SieEstimator {
     options: SieOptions,
     models: Vec<HistogramModel>,
+    /// Pooled mode: which residual columns had spread at the last fit (see `active_columns`).
+    active: Vec<bool>,
 }
 
 impl SieEstimator {
@@ -168,6 +170,16 @@ impl SieEstimator {
         SieEstimator {
             options,
             models: Vec::new(),
+            active: Vec::new(),
+        }
+    }
+
+    /// Raises the lower bound on σ to `resolution` (normalised units): below the rounding
+    /// of the coordinates, residuals carry no noise to fit (exact data), and a σ at the
+    /// rounding level would make the next rounding error an outlier.
+    pub fn set_resolution(&mut self, resolution: f64) {
+        if resolution.is_finite() && resolution > self.options.min_sigma {
+            self.options.min_sigma = resolution;
         }
     }
 
@@ -270,7 +282,15 @@ impl SieEstimator {
         let options = &self.options;
         match options.histogram {
             HistogramMode::Pooled => {
-                self.models[0].fit(options, true, || residuals.iter().map(|r| r.abs()));
+                self.active = active_columns(residuals, cols);
+                let active = &self.active;
+                self.models[0].fit(options, true, || {
+                    residuals
+                        .iter()
+                        .enumerate()
+                        .filter(|(idx, _)| active[idx % cols])
+                        .map(|(_, r)| r.abs())
+                });
             }
             HistogramMode::PerColumn => {
                 for (j, model) in self.models.iter_mut().enumerate() {
@@ -316,31 +336,34 @@ impl SieEstimator {
             }
             return sum / rows as f64;
         }
-        let total: f64 = residuals
+        // Columns without spread (pooled mode) carry no evidence and take no part.
+        let active = |j: usize| self.options.histogram == HistogramMode::PerColumn || self.active.get(j).copied().unwrap_or(true);
+        let columns = (0..cols).filter(|&j| active(j)).count().max(1);
+        let (total, count) = residuals
             .iter()
             .enumerate()
-            .map(|(idx, &r)| self.component_probability(r, idx % cols))
-            .sum();
-        let prior = (total / residuals.len() as f64).clamp(1e-9, 1.0 - 1e-9);
-        // §4.2: γ = (P(I)/P(O))^(m-1)
-        let gamma = match self.options.gamma {
-            GammaRule::Paper => (prior / (1.0 - prior)).powi(cols as i32 - 1),
-            GammaRule::One => 1.0,
+            .filter(|(idx, _)| active(idx % cols))
+            .fold((0.0, 0usize), |(sum, n), (idx, &r)| (sum + self.component_probability(r, idx % cols), n + 1));
+        let prior = (total / count.max(1) as f64).clamp(1e-9, 1.0 - 1e-9);
+        // §4.2: γ = (P(I)/P(O))^(m-1), kept as a logarithm: with hundreds of columns the
+        // products below leave f64's range (200 columns of N(0, 1) gave P = 0 for every row).
+        let log_gamma = match self.options.gamma {
+            GammaRule::Paper => (columns as f64 - 1.0) * (prior.ln() - (1.0 - prior).ln()),
+            GammaRule::One => 0.0,
         };
         for (o, row) in out.iter_mut().zip(residuals.chunks_exact(cols)) {
-            let mut inlier = 1.0;
-            let mut outlier = 1.0;
-            for (j, &r) in row.iter().enumerate() {
+            let (mut log_inlier, mut log_outlier) = (0.0, 0.0);
+            for (j, &r) in row.iter().enumerate().filter(|(j, _)| active(*j)) {
                 let p = self.component_probability(r, j);
-                inlier *= p;
-                outlier *= 1.0 - p;
+                log_inlier += p.ln();
+                log_outlier += (-p).ln_1p();
             }
-            // P(I|R_i) = Πp / (Πp + γ·Π(1-p))
-            let denominator = inlier + gamma * outlier;
-            *o = if denominator > 0.0 {
-                inlier / denominator
-            } else {
+            // P(I|R_i) = Πp / (Πp + γ·Π(1-p)) = 1 / (1 + exp(ln γ + ΣlnΠ(1-p) − ΣlnΠp))
+            let log_ratio = log_gamma + log_outlier - log_inlier;
+            *o = if log_inlier == f64::NEG_INFINITY {
                 0.0
+            } else {
+                1.0 / (1.0 + log_ratio.exp())
             };
         }
         prior
@@ -363,9 +386,30 @@ impl SieEstimator {
     }
 }
 
-/// sqrt(mean(x²)); 0 for no data.
+/// A column whose RMS is below this fraction of the largest column's has no spread of its own
+/// (rounding only: planar data, a 2-D scanner, noise on one axis): pooled with the others it
+/// would put a spike at zero that makes every real residual an outlier.
+const SILENT_COLUMN: f64 = 1e-6;
+
+/// Pooled mode: the columns with spread (every column when none has any).
+fn active_columns(residuals: &[f64], cols: usize) -> Vec<bool> {
+    let rms: Vec<f64> = (0..cols)
+        .map(|j| root_mean_square(residuals.iter().skip(j).step_by(cols).copied()))
+        .collect();
+    let largest = rms.iter().copied().fold(0.0, f64::max);
+    rms.iter().map(|&r| largest == 0.0 || r > SILENT_COLUMN * largest).collect()
+}
+
+/// Residuals larger than this (normalised units) are outliers whatever the model: their squares
+/// would leave f64's range. They are left out of every statistic (one garbage pair at 1e160
+/// among good ones made the RMS start infinite and every probability 0).
+pub(crate) const ARITHMETIC_LIMIT: f64 = 1e100;
+
+/// sqrt(mean(x²)) over the values within ±ARITHMETIC_LIMIT; 0 for none.
 pub(crate) fn root_mean_square(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let (sum, n) = values
+        .filter(|v| v.abs() <= ARITHMETIC_LIMIT)
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
     if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 

@@ -84,6 +84,11 @@ impl Schedule {
         }
     }
 
+    /// The smallest σ the data can show (`SieEstimator::set_resolution`).
+    pub fn set_resolution(&mut self, resolution: f64) {
+        self.estimator.set_resolution(resolution);
+    }
+
     /// The estimator with its last fitted models.
     pub fn estimator(&self) -> &SieEstimator {
         &self.estimator
