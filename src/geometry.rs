@@ -136,9 +136,43 @@ pub struct Solve {
     pub rank_deficient: bool,
 }
 
+/// Pairs whose largest coordinate magnitude is outside [2^-64, 2^64] are solved scaled by a
+/// power of two (exact): the cross-covariance holds squared coordinates, which overflow from
+/// ~1e154 (the SVD then returns NaN) and underflow below ~1e-154.
+const UNSCALED_MAX_EXPONENT: i32 = 64;
+
 /// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
-/// `None` when the weights sum to zero.
+/// `None` when the weights sum to zero. Any finite coordinates: see [`UNSCALED_MAX_EXPONENT`].
 pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
+    let largest = pairs
+        .iter()
+        .flat_map(|(a, b)| a.iter().chain(b))
+        .fold(0.0f64, |m, c| m.max(c.abs()));
+    let exponent = if largest > 0.0 && largest.is_finite() {
+        largest.log2().floor() as i32
+    } else {
+        0
+    };
+    if exponent.abs() <= UNSCALED_MAX_EXPONENT {
+        return unscaled_rigid_fit(pairs, weights);
+    }
+    // R is unchanged by a common scale s of both point sets and t scales with it: fit s·a ↦ s·b.
+    let shift = (-exponent).clamp(-1000, 1000);
+    let scale = 2f64.powi(shift);
+    let scaled: Vec<(Point, Point)> = pairs
+        .iter()
+        .map(|(a, b)| (a.map(|c| c * scale), b.map(|c| c * scale)))
+        .collect();
+    let mut solve = unscaled_rigid_fit(&scaled, weights)?;
+    let translation = translation_part(&solve.transform) * 2f64.powi(-shift);
+    solve
+        .transform
+        .fixed_view_mut::<3, 1>(0, 3)
+        .copy_from(&translation);
+    Some(solve)
+}
+
+fn unscaled_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
@@ -292,6 +326,32 @@ mod tests {
         let solve = weighted_rigid_fit(&pairs, &vec![1.0; pairs.len()]).unwrap();
         assert!((solve.transform - t).abs().max() < 1e-10);
         assert!(!solve.rank_deficient);
+    }
+
+    /// The cross-covariance squares coordinates: at 1e200 it overflowed (NaN from the SVD),
+    /// at 1e-200 it underflowed to 0 (rank deficient, identity). Scaled, both are exact.
+    #[test]
+    fn weighted_kabsch_is_exact_at_any_magnitude() {
+        let t = example_transform();
+        for scale in [1e200, 1e77, 1e-200, 1e-300] {
+            let pairs: Vec<(Point, Point)> = cube_points()
+                .iter()
+                .map(|a| {
+                    let b = transform_point(&t, a);
+                    (a.map(|c| c * scale), b.map(|c| c * scale))
+                })
+                .collect();
+            let solve = weighted_rigid_fit(&pairs, &vec![1.0; pairs.len()]).unwrap();
+            assert!(!solve.rank_deficient, "{scale:e}");
+            let rotation_error = (rotation_part(&solve.transform) - rotation_part(&t)).amax();
+            let translation_error =
+                (translation_part(&solve.transform) / scale - translation_part(&t)).amax();
+            assert!(
+                rotation_error < 1e-10 && translation_error < 1e-10,
+                "{scale:e}: {}",
+                solve.transform
+            );
+        }
     }
 
     #[test]

@@ -358,6 +358,51 @@ fn symmetric_shape_registers_without_nan() {
     );
 }
 
+/// Cloud registration of a scene expressed at 1e77 or 1e100 (or 1e-100) times its size: the
+/// nearest-neighbour search and the point-to-point solve square coordinates, which overflowed
+/// (PANIC "index out of bounds" in `src/nn.rs` for point-to-point at 1e77, NaN from the SVD
+/// once that was fixed). The answer must be the unit-scale answer, scaled (to 1e-5: the
+/// absolute convergence tolerances stop the runs at different iterations).
+#[test]
+fn clouds_at_extreme_magnitudes_register_like_the_unit_scale_scene() {
+    let scene = room_scene(2000, 0.01, 3);
+    for metric in [sie_metric::PointToPoint, sie_metric::PointToPlane] {
+        let ctx = Context::new();
+        // SAFETY: live context.
+        assert_eq!(
+            unsafe { sie_context_set_metric(ctx.0, metric as u32) },
+            sie_status::Ok
+        );
+        let mut reference = [SENTINEL; 16];
+        assert_eq!(
+            ctx.register(&scene.source, &scene.target, &mut reference),
+            sie_status::Ok
+        );
+        for scale in [1e77, 1e100, 1e-100] {
+            let grow = |points: &[[f64; 3]]| -> Vec<[f64; 3]> {
+                points.iter().map(|p| p.map(|c| c * scale)).collect()
+            };
+            let mut out = [SENTINEL; 16];
+            let status = ctx.register(&grow(&scene.source), &grow(&scene.target), &mut out);
+            assert_eq!(
+                status,
+                sie_status::Ok,
+                "{metric:?} at {scale:e}: {}",
+                ctx.last_error()
+            );
+            assert!(finite_transform(&out), "{metric:?} at {scale:e}: {out:?}");
+            for row in 0..3 {
+                for col in 0..3 {
+                    let (got, want) = (out[4 * row + col], reference[4 * row + col]);
+                    assert!((got - want).abs() < 1e-5, "{metric:?} at {scale:e}: R {out:?}");
+                }
+                let (got, want) = (out[4 * row + 3] / scale, reference[4 * row + 3]);
+                assert!((got - want).abs() < 1e-5, "{metric:?} at {scale:e}: t {out:?}");
+            }
+        }
+    }
+}
+
 // ---------------------------------------------------------------- SIE edge cases
 
 fn estimate(residuals: &[f64]) -> (sie_status, Vec<f64>, sie_model) {
