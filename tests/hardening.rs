@@ -504,35 +504,3 @@ fn eight_threads_with_their_own_contexts_match_serial_results() {
         .collect();
     assert_eq!(serial, parallel);
 }
-
-fn resident_bytes() -> Option<usize> {
-    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
-    let pages: usize = statm.split_whitespace().nth(1)?.parse().ok()?;
-    Some(pages * 4096)
-}
-
-#[test]
-fn a_thousand_registrations_on_one_context_do_not_grow_memory() {
-    let scene = room_scene(800, 0.01, 9);
-    let ctx = Context::new();
-    let mut out = [SENTINEL; 16];
-    let mut run = |times: usize| {
-        for _ in 0..times {
-            assert_eq!(
-                ctx.register(&scene.source, &scene.target, &mut out),
-                sie_status::Ok
-            );
-        }
-    };
-    run(50);
-    let Some(before) = resident_bytes() else { return };
-    run(1000);
-    let after = resident_bytes().unwrap();
-    let growth = after.saturating_sub(before);
-    println!("RSS before {before} B, after 1000 runs {after} B (growth {growth} B)");
-    // One registration's working set is ~1 MB; a leak of even 1 kB per run would show as 1 MB.
-    assert!(
-        growth < 1 << 20,
-        "RSS grew by {growth} bytes over 1000 registrations"
-    );
-}
