@@ -86,8 +86,10 @@ enum sie_status
      */
     SIE_STATUS_BUFFER_TOO_SMALL = 7,
     /**
-     * The context is in use by a registration further up the stack (a call from inside its
-     * noise callback); nothing was changed.
+     * The context is in use by another call: a registration further up the stack (a call
+     * from inside its noise or progress callback) or, against the one-call-at-a-time
+     * contract, a call on another thread. Nothing was changed, not even the context's error
+     * message (`sie_context_last_error` gives a fixed text while the context is in use).
      */
     SIE_STATUS_BUSY = 8,
     /**
@@ -300,9 +302,14 @@ typedef uint32_t sie_cloud;
  * A registration context: configuration, noise callback, last result and last error.
  * Create with `sie_context_new`, free with `sie_context_free`.
  *
- * A context may be used from any thread, but by one thread at a time (this includes the
+ * A context may be used from any thread, but by one call at a time (this includes the
  * functions taking `const sie_context*`). Distinct contexts are independent; the library has
  * no global state.
+ *
+ * Every call first takes the context (a try-lock, `busy`) and gives it back when it returns; a
+ * call that finds it taken returns BUSY without touching anything else. So misuse (a call
+ * from inside a callback, or from a second thread) is always refused, never a data race, and
+ * the state is only ever reached through the one owning call.
  */
 typedef struct sie_context sie_context;
 
@@ -316,6 +323,11 @@ typedef struct sie_context sie_context;
  * registration with `SIE_STATUS_CALLBACK_FAILED` and the value in the message. It must not
  * unwind or throw, and must not free the context; other calls on the same context from inside
  * it return `SIE_STATUS_BUSY`. The pointers are valid only during the call.
+ *
+ * Never leave it with `longjmp` (or a C++ exception through C frames): that skips the
+ * library's cleanup, so the context stays in use for good (every later call on it returns
+ * BUSY, `sie_context_free` ignores it and it leaks) along with the registration's memory.
+ * Return non-zero instead, and longjmp after the registration has returned.
  */
 typedef int32_t (*sie_noise_fn)(void *user_data,
                                 uint32_t cloud,
@@ -363,7 +375,8 @@ typedef struct sie_trace_entry {
  * trace entry (valid only during the call), synchronously on the registering thread. Return 0
  * to continue; any other value cancels the registration, which then returns
  * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
- * on the same context from inside it return `SIE_STATUS_BUSY`.
+ * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
+ * (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
  */
 typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
 
@@ -529,9 +542,15 @@ sie_status sie_context_cancel(const struct sie_context *ctx);
 
 /**
  * The detail message of the last call on this context that returned a status: "" after a
- * success, otherwise what went wrong (names the argument, value or index). Owned by the
- * context; valid until the next call on it. A NULL context gives a static message. Never
- * NULL.
+ * success, otherwise what went wrong (names the argument, value or index). A call that
+ * returned BUSY leaves it unchanged. While another call is using the context (from inside its
+ * callbacks, say) it is a static text saying so; a NULL context gives a static message.
+ * Never NULL.
+ *
+ * The text is the calling thread's own copy, valid until this thread asks for this context's
+ * message again, frees the context, or exits (each thread keeps the copies of its 64 most
+ * recently asked contexts). So a message being read can never be replaced by a call on
+ * another thread.
  *
  * # Safety
  * `ctx` is NULL or a live context.

@@ -59,7 +59,7 @@ pub unsafe extern "C" fn sie_estimate_inliers(
     out_model_count: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out_probabilities, "out_probabilities")?;
         check_optional_output(out_models, "out_models")?;
         check_optional_output(out_model_count, "out_model_count")?;
@@ -98,8 +98,7 @@ pub unsafe extern "C" fn sie_estimate_inliers(
             )));
         }
 
-        let state = context.state()?;
-        let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &state.config.sie)?;
+        let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &call.state.config.sie)?;
         let model_count = estimate.models.len();
         if !out_models.is_null() && models_capacity < model_count {
             return Err(FfiError::new(

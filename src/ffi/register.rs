@@ -127,8 +127,8 @@ unsafe fn register_clouds_from<T: Coordinate>(
     out_t_target_source: *mut f64,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = call.state;
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
@@ -147,8 +147,8 @@ unsafe fn register_clouds_from<T: Coordinate>(
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
-                &mut state,
-                &context.cancel_requested,
+                state,
+                call.cancel_requested,
                 out_t_target_source,
                 |config, hooks| {
                     crate::registration::register_clouds(
@@ -175,8 +175,8 @@ unsafe fn register_correspondences_from<T: Coordinate>(
     out_t_target_source: *mut f64,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = call.state;
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
@@ -186,8 +186,8 @@ unsafe fn register_correspondences_from<T: Coordinate>(
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
-                &mut state,
-                &context.cancel_requested,
+                state,
+                call.cancel_requested,
                 out_t_target_source,
                 |config, hooks| {
                     crate::registration::register_correspondences(

@@ -93,10 +93,10 @@ pub unsafe extern "C" fn sie_context_get_summary(
     out: *mut sie_summary,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out, "out")?;
-        let state = context.state()?;
-        let summary = summary_of(stored_result(&state)?);
+        let state = &*call.state;
+        let summary = summary_of(stored_result(state)?);
         // SAFETY: checked above; writable per the contract.
         unsafe { write_output(out, &[summary]) };
         Ok(())
@@ -124,9 +124,9 @@ pub unsafe extern "C" fn sie_context_get_inlier_probabilities(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let result = stored_result(state)?;
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &result.probabilities, "source points") }
     })
@@ -147,9 +147,9 @@ pub unsafe extern "C" fn sie_context_get_correspondences(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let result = stored_result(state)?;
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &result.correspondences, "source points") }
     })
@@ -181,7 +181,7 @@ pub unsafe extern "C" fn sie_context_get_histogram(
     capacity: usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out_model, "out_model")?;
         let arrays = [
             (out_counts, "out_counts"),
@@ -192,8 +192,8 @@ pub unsafe extern "C" fn sie_context_get_histogram(
         for (ptr, name) in arrays {
             check_optional_output(ptr, name)?;
         }
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+        let state = &*call.state;
+        let result = stored_result(state)?;
         let histogram = result.histograms.get(index).ok_or_else(|| {
             FfiError::invalid(format!(
                 "index {index} is out of range: the result has {} histograms",
@@ -246,9 +246,9 @@ pub unsafe extern "C" fn sie_context_get_trace(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let entries: Vec<sie_trace_entry> = stored_result(&state)?.trace.iter().map(trace_entry_of).collect();
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let entries: Vec<sie_trace_entry> = stored_result(state)?.trace.iter().map(trace_entry_of).collect();
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &entries, "trace entries") }
     })

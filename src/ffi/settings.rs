@@ -24,12 +24,11 @@ unsafe fn update_config(
     change: impl FnOnce(&mut RegistrationConfig) -> Result<(), FfiError>,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
-        let mut config = state.config.clone();
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let mut config = call.state.config.clone();
         change(&mut config)?;
         config.validate()?;
-        state.config = config;
+        call.state.config = config;
         Ok(())
     })
 }
@@ -164,8 +163,8 @@ pub unsafe extern "C" fn sie_context_set_noise_callback(
     user_data: *mut c_void,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        context.state_mut()?.noise_callback = noise_fn.map(|function| NoiseCallback { function, user_data });
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        call.state.noise_callback = noise_fn.map(|function| NoiseCallback { function, user_data });
         Ok(())
     })
 }
@@ -350,9 +349,8 @@ pub unsafe extern "C" fn sie_context_set_progress_callback(
     user_data: *mut c_void,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
-        state.progress_callback = progress_fn.map(|function| ProgressCallback { function, user_data });
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        call.state.progress_callback = progress_fn.map(|function| ProgressCallback { function, user_data });
         Ok(())
     })
 }

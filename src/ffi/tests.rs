@@ -39,15 +39,15 @@ impl Context {
     }
 
     fn config(&self) -> RegistrationConfig {
-        self.get().state.borrow().config.clone()
+        self.get().take().expect("not busy").state.config.clone()
     }
 
     fn inject_result(&self, result: RegistrationResult) {
-        self.get().state.borrow_mut().result = Some(result);
+        self.get().take().expect("not busy").state.result = Some(result);
     }
 
     fn has_result(&self) -> bool {
-        self.get().state.borrow().result.is_some()
+        self.get().take().expect("not busy").state.result.is_some()
     }
 }
 
@@ -368,24 +368,33 @@ fn panic_becomes_status_with_message_and_drops_the_result() {
     assert!(!ctx.has_result());
     // The context stays usable.
     assert_eq!(unsafe { sie_context_set_seed(ctx.0, 3) }, sie_status::Ok);
-    // A panic while holding the state (as a registration would) releases it on unwind.
-    let status = boundary(Some(ctx.get()), |context| {
-        let _state = context.state_mut()?;
+    // A panic while a registration uses the state leaves the context free for the next call.
+    let status = boundary(Some(ctx.get()), |call| {
+        call.state.config.seed = 7;
         panic!("inside")
     });
     assert_eq!(status, sie_status::Panic);
     assert_eq!(unsafe { sie_context_set_seed(ctx.0, 4) }, sie_status::Ok);
+    assert_eq!(ctx.config().seed, 4);
 }
 
 #[test]
 fn calls_while_a_registration_holds_the_context_are_busy() {
     let ctx = Context::new();
     ctx.inject_result(sample_result());
-    let held = ctx.get().state.borrow_mut();
+    // A failed call leaves a message; the BUSY calls below must not replace it.
+    assert_eq!(
+        unsafe { sie_context_set_threads(ctx.0, 5000) },
+        sie_status::InvalidArgument
+    );
+    let message = ctx.last_error();
+    assert!(message.contains("threads"), "{message}");
+    let held = ctx.get().take().unwrap();
     let mut summary = sie_summary::default();
     unsafe {
         assert_eq!(sie_context_set_seed(ctx.0, 1), sie_status::Busy);
         assert_eq!(sie_context_get_summary(ctx.0, &mut summary), sie_status::Busy);
+        // While the context is in use its message is a fixed text, not the owner's string.
         assert!(ctx.last_error().contains("busy"), "{}", ctx.last_error());
         // Ignored rather than freeing memory that is in use.
         sie_context_free(ctx.0);
@@ -393,7 +402,60 @@ fn calls_while_a_registration_holds_the_context_are_busy() {
     drop(held);
     assert_eq!(summary, sie_summary::default());
     assert!(ctx.has_result(), "a BUSY call must not touch the state");
+    assert_eq!(
+        ctx.last_error(),
+        message,
+        "a BUSY call must not touch the error message"
+    );
     assert_eq!(unsafe { sie_context_set_seed(ctx.0, 1) }, sie_status::Ok);
+    assert_eq!(ctx.last_error(), "");
+}
+
+/// One context used from two threads at once (against the contract): every call either runs
+/// or is refused with BUSY, and the context is consistent afterwards. With the former RefCell
+/// flag this was a data race (helgrind: the borrow flag and the error string).
+#[test]
+fn two_threads_on_one_context_are_refused_not_racy() {
+    let ctx = Context::new();
+    let context = ctx.get();
+    let (mut ran, mut refused) = (0usize, 0usize);
+    std::thread::scope(|scope| {
+        let other = scope.spawn(|| {
+            let (mut ran, mut refused) = (0usize, 0usize);
+            for seed in 0..20_000u64 {
+                match boundary(Some(context), |call| {
+                    call.state.config.seed = seed;
+                    Err(FfiError::invalid(format!("other thread {seed}")))
+                }) {
+                    sie_status::InvalidArgument => ran += 1,
+                    sie_status::Busy => refused += 1,
+                    status => panic!("{status:?}"),
+                }
+            }
+            (ran, refused)
+        });
+        for seed in 0..20_000u64 {
+            let ptr = core::ptr::from_ref(context).cast_mut();
+            match unsafe { sie_context_set_seed(ptr, seed) } {
+                sie_status::Ok => ran += 1,
+                sie_status::Busy => refused += 1,
+                status => panic!("{status:?}"),
+            }
+        }
+        let (other_ran, other_refused) = other.join().unwrap();
+        ran += other_ran;
+        refused += other_refused;
+    });
+    assert_eq!(ran + refused, 40_000);
+    // A refusal means the other call was running, so something ran.
+    assert!(ran > 0);
+    // Whoever ran last left a consistent state and message.
+    let seed = ctx.config().seed;
+    let message = ctx.last_error();
+    assert!(
+        message.is_empty() || message == format!("other thread {seed}"),
+        "seed {seed}, message {message:?}"
+    );
 }
 
 /// What `recording_callback` saw, and what it should return.
@@ -437,10 +499,10 @@ fn noise_callback_adapter_passes_packed_points_and_reports_failure() {
         sie_context_set_noise_callback(ctx.0, Some(recording_callback), (&raw mut log).cast::<c_void>())
     };
     assert_eq!(status, sie_status::Ok);
-    let mut callback = ctx.get().state.borrow().noise_callback.unwrap();
+    let mut callback = ctx.get().take().unwrap().state.noise_callback.unwrap();
 
     // As during a registration: the state is held while the callback runs.
-    let held = ctx.get().state.borrow_mut();
+    let held = ctx.get().take().unwrap();
     let mut sigmas = [f64::NAN; 2];
     let points = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]];
     assert_eq!(
@@ -465,7 +527,7 @@ fn noise_callback_adapter_passes_packed_points_and_reports_failure() {
 
     let status = unsafe { sie_context_set_noise_callback(ctx.0, None, null_mut()) };
     assert_eq!(status, sie_status::Ok);
-    assert!(ctx.get().state.borrow().noise_callback.is_none());
+    assert!(ctx.get().take().unwrap().state.noise_callback.is_none());
 }
 
 #[repr(C)]
