@@ -56,6 +56,7 @@ enum class Status : std::uint32_t {
     BufferTooSmall = SIE_STATUS_BUFFER_TOO_SMALL,
     Busy = SIE_STATUS_BUSY,
     Cancelled = SIE_STATUS_CANCELLED, // not thrown by align(): the result is kept (StopReason::Cancelled)
+    OutOfMemory = SIE_STATUS_OUT_OF_MEMORY,
     Panic = SIE_STATUS_PANIC,
 };
 

@@ -99,6 +99,12 @@ enum sie_status
      */
     SIE_STATUS_CANCELLED = 9,
     /**
+     * Not enough memory for this input: a buffer sized by a count, or the working set of the
+     * registration (asked for before it starts), could not be allocated; nothing was written
+     * and the process is unharmed. The message says how much was needed.
+     */
+    SIE_STATUS_OUT_OF_MEMORY = 10,
+    /**
      * An internal error (a Rust panic) was caught; the stored result was discarded. Please
      * report it with the message from `sie_context_last_error`.
      */
@@ -729,8 +735,10 @@ sie_status sie_context_set_progress_callback(struct sie_context *ctx,
  * On success the result is stored in the context for the `sie_context_get_*` functions; on
  * any error the previous result is discarded. Non-convergence is not an error (see
  * `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
- * transform), TOO_FEW_POINTS (a count is 0 or too small), NON_FINITE_INPUT (names the array
- * and point index), CALLBACK_FAILED, BUSY.
+ * transform, a count beyond the address space), TOO_FEW_POINTS (a count is 0 or too small),
+ * NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
+ * (the copies of the clouds or the registration's working set, about 450 bytes per source
+ * and 160 per target point, cannot be allocated; checked before the registration starts).
  *
  * # Safety
  * `ctx` is NULL or a live context; each non-NULL array is readable for its count of points at
@@ -920,7 +928,8 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
  *
  * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
  * bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
- * overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY.
+ * overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY,
+ * OUT_OF_MEMORY.
  *
  * # Safety
  * `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

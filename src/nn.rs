@@ -257,10 +257,6 @@ impl NearestNeighbours {
     }
 }
 
-fn out_of_memory(count: usize, bytes_each: usize) -> String {
-    format!("nearest-neighbour index: out of memory for {count} entries of {bytes_each} bytes")
-}
-
 /// The power of two the tree's coordinates are multiplied by (see [`UNSCALED_MAX_EXPONENT`]).
 fn tree_scale(points: &[Point]) -> f64 {
     let largest = points.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
@@ -370,12 +366,8 @@ fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, String> {
     Ok(Some(Locations { offsets, members }))
 }
 
-/// An empty Vec with room for `count` elements, or an error naming the size.
 fn try_with_capacity<T>(count: usize) -> Result<Vec<T>, String> {
-    let mut v = Vec::new();
-    v.try_reserve_exact(count)
-        .map_err(|_| out_of_memory(count, size_of::<T>()))?;
-    Ok(v)
+    crate::memory::try_vec(count, "the nearest-neighbour index").map_err(|e| e.to_string())
 }
 
 const EMPTY_SLOT: u32 = u32::MAX;

@@ -6,6 +6,7 @@ use std::ffi::CStr;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::{ContextState, sie_context, sie_status};
+use crate::memory::MemoryError;
 use crate::registration::Error;
 use std::sync::atomic::AtomicBool;
 
@@ -30,6 +31,16 @@ impl FfiError {
 
     pub(crate) fn invalid(message: impl Into<String>) -> Self {
         Self::new(sie_status::InvalidArgument, message)
+    }
+}
+
+impl From<MemoryError> for FfiError {
+    fn from(error: MemoryError) -> Self {
+        let status = match error {
+            MemoryError::TooLarge { .. } => sie_status::InvalidArgument,
+            MemoryError::OutOfMemory { .. } => sie_status::OutOfMemory,
+        };
+        FfiError::new(status, error.to_string())
     }
 }
 

@@ -6,6 +6,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, read_array, write_output};
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
+use crate::memory;
 use crate::registration::estimate_inliers;
 
 fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError> {
@@ -38,7 +39,8 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
 ///
 /// Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
 /// bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
-/// overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY.
+/// overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY,
+/// OUT_OF_MEMORY.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;
@@ -98,6 +100,7 @@ pub unsafe extern "C" fn sie_estimate_inliers(
             )));
         }
 
+        memory::ensure_available(memory::estimate_bytes(len), "the inlier estimate")?;
         let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &call.state.config.sie)?;
         let model_count = estimate.models.len();
         if !out_models.is_null() && models_capacity < model_count {

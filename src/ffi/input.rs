@@ -7,6 +7,7 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::sie_status;
+use crate::memory::try_vec;
 use crate::registration::Point;
 
 /// The scalar types point arrays come in.
@@ -90,8 +91,10 @@ pub(crate) unsafe fn read_array<T: Copy>(ptr: *const T, len: usize, name: &str) 
     check_non_null(ptr, name)?;
     check_aligned(ptr, name)?;
     check_extent(len.checked_mul(size_of::<T>()), name)?;
+    let mut copy = try_vec(len, name)?;
     // SAFETY: non-NULL, aligned, within isize::MAX bytes, and readable per the contract.
-    Ok(unsafe { core::slice::from_raw_parts(ptr, len) }.to_vec())
+    copy.extend_from_slice(unsafe { core::slice::from_raw_parts(ptr, len) });
+    Ok(copy)
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`
@@ -128,7 +131,9 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
         .map_or(Some(0), |last| last.checked_mul(stride)?.checked_add(3 * scalar));
     check_extent(extent, name)?;
 
-    let mut points = Vec::with_capacity(count);
+    // The copy holds f64 (24 bytes a point), more than a float array's 12: a count that fits
+    // the caller's memory may still not fit here.
+    let mut points = try_vec(count, &format!("{name} ({count} points)"))?;
     for i in 0..count {
         // SAFETY: inside the extent checked above, aligned because the base is aligned and the
         // stride is a multiple of the scalar size; readable per the contract.

@@ -68,6 +68,10 @@ pub enum sie_status {
     /// non-zero). Not a failure: the transform reached so far WAS written to
     /// `out_T_target_source` and the result stored (stop reason CANCELLED).
     Cancelled = 9,
+    /// Not enough memory for this input: a buffer sized by a count, or the working set of the
+    /// registration (asked for before it starts), could not be allocated; nothing was written
+    /// and the process is unharmed. The message says how much was needed.
+    OutOfMemory = 10,
     /// An internal error (a Rust panic) was caught; the stored result was discarded. Please
     /// report it with the message from `sie_context_last_error`.
     Panic = 100,
@@ -458,6 +462,7 @@ pub extern "C" fn sie_status_str(status: u32) -> *const c_char {
             7 => c"buffer too small",
             8 => c"context busy",
             9 => c"cancelled",
+            10 => c"out of memory",
             100 => c"internal panic",
             _ => c"unknown status",
         };

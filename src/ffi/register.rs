@@ -13,6 +13,7 @@ use super::{ContextState, sie_context, sie_status};
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use crate::memory;
 use crate::noise::NoiseScales;
 use crate::registration::{
     Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
@@ -144,6 +145,8 @@ unsafe fn register_clouds_from<T: Coordinate>(
         };
         let init: Option<Matrix4<f64>> =
             unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        let working_set = memory::cloud_registration_bytes(source_points.len(), target_points.len());
+        memory::ensure_available(working_set, "the registration of these clouds")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
@@ -183,6 +186,8 @@ unsafe fn register_correspondences_from<T: Coordinate>(
         let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
         let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        let working_set = memory::correspondence_registration_bytes(source_points.len());
+        memory::ensure_available(working_set, "the registration of these pairs")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
@@ -222,8 +227,10 @@ unsafe fn register_correspondences_from<T: Coordinate>(
 /// On success the result is stored in the context for the `sie_context_get_*` functions; on
 /// any error the previous result is discarded. Non-convergence is not an error (see
 /// `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
-/// transform), TOO_FEW_POINTS (a count is 0 or too small), NON_FINITE_INPUT (names the array
-/// and point index), CALLBACK_FAILED, BUSY.
+/// transform, a count beyond the address space), TOO_FEW_POINTS (a count is 0 or too small),
+/// NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
+/// (the copies of the clouds or the registration's working set, about 450 bytes per source
+/// and 160 per target point, cannot be allocated; checked before the registration starts).
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; each non-NULL array is readable for its count of points at

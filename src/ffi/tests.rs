@@ -530,6 +530,82 @@ fn noise_callback_adapter_passes_packed_points_and_reports_failure() {
     assert!(ctx.get().take().unwrap().state.noise_callback.is_none());
 }
 
+/// A float count whose extent at stride 12 fits the address space, but whose f64 copy (24
+/// bytes a point) does not: it passed the size check and panicked ("capacity overflow").
+#[test]
+fn counts_whose_copy_cannot_exist_are_invalid_arguments() {
+    let ctx = Context::new();
+    let floats = [0.5f32; 12];
+    let mut out = [-7.0f64; 16];
+    for count in [0x0aaa_aaaa_aaaa_aaa9usize, (isize::MAX as usize) / 12] {
+        let status = unsafe {
+            sie_context_register(
+                ctx.0,
+                floats.as_ptr(),
+                count,
+                12,
+                floats.as_ptr(),
+                4,
+                0,
+                null(),
+                out.as_mut_ptr(),
+            )
+        };
+        assert_eq!(
+            status,
+            sie_status::InvalidArgument,
+            "{count:#x}: {}",
+            ctx.last_error()
+        );
+        let message = ctx.last_error();
+        assert!(
+            message.contains("source_xyz") && message.contains("address space"),
+            "{message}"
+        );
+        let status = unsafe {
+            sie_context_register_correspondences(
+                ctx.0,
+                floats.as_ptr(),
+                0,
+                floats.as_ptr(),
+                0,
+                count,
+                null(),
+                out.as_mut_ptr(),
+            )
+        };
+        assert_eq!(
+            status,
+            sie_status::InvalidArgument,
+            "{count:#x}: {}",
+            ctx.last_error()
+        );
+        let status = unsafe {
+            sie_context_register_with_normals(
+                ctx.0,
+                floats.as_ptr(),
+                4,
+                0,
+                floats.as_ptr(),
+                count,
+                12,
+                floats.as_ptr(),
+                12,
+                null(),
+                out.as_mut_ptr(),
+            )
+        };
+        assert_eq!(
+            status,
+            sie_status::InvalidArgument,
+            "{count:#x}: {}",
+            ctx.last_error()
+        );
+        assert!(ctx.last_error().contains("target_xyz"), "{}", ctx.last_error());
+    }
+    assert!(out.iter().all(|&v| v == -7.0), "outputs must stay untouched");
+}
+
 #[repr(C)]
 struct PaddedPoint {
     x: f32,

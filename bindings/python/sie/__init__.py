@@ -62,6 +62,7 @@ class Status(enum.IntEnum):
     BUFFER_TOO_SMALL = 7
     BUSY = 8
     CANCELLED = 9
+    OUT_OF_MEMORY = 10
     PANIC = 100
 
 
