@@ -12,6 +12,7 @@ use sie::geometry::{rotation_part, transform_point, vector};
 use sie::io::{
     CloudFile, NonFinite, read_cloud_with, read_transform, write_cloud_pcd_ascii, write_cloud_xyz,
 };
+use sie::memory;
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, register_clouds,
@@ -77,6 +78,12 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let source = read_cloud_with(&args.source, policy).map_err(input_error)?;
     progress.note(&format!("reading {}", args.target.display()));
     let target = read_cloud_with(&args.target, policy).map_err(input_error)?;
+    // Data the files hold beyond what they declare is said even with -q: it was not read.
+    for (path, cloud) in [(&args.source, &source), (&args.target, &target)] {
+        for warning in &cloud.warnings {
+            eprintln!("sie: warning: {}: {warning}", path.display());
+        }
+    }
     let target_normals = if args.file_normals {
         let normals = target.normals.as_deref().ok_or_else(|| {
             CliError::new(format!(
@@ -90,6 +97,10 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     };
     let read_seconds = read_start.elapsed().as_secs_f64();
 
+    // Asked for before starting, so that a memory limit is an error here, not an abort later.
+    let working_set = memory::cloud_registration_bytes(source.points.len(), target.points.len());
+    memory::ensure_available(working_set, "the registration of these clouds")
+        .map_err(|e| CliError::new(format!("cannot register: {e}")))?;
     install_interrupt_handler();
     progress.note(match (config.metric, target_normals) {
         (Metric::PointToPlane, None) => "estimating target normals",
@@ -259,6 +270,7 @@ fn cloud_report(path: &Path, cloud: &CloudFile) -> CloudReport {
         path: path.display().to_string(),
         points: cloud.points.len(),
         skipped_non_finite: cloud.skipped_non_finite,
+        warnings: cloud.warnings.clone(),
     }
 }
 

@@ -63,6 +63,9 @@ pub struct CloudReport {
     pub points: usize,
     /// Points dropped for a non-finite coordinate (`--skip-invalid`).
     pub skipped_non_finite: usize,
+    /// What the reader noticed but read past (also printed on stderr, `-q` or not), e.g. a PCD
+    /// file holding more points than its header declares.
+    pub warnings: Vec<String>,
 }
 
 /// Error of the result against `--ground-truth`.
