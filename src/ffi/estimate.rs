@@ -15,7 +15,7 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
         Some(index) => Err(FfiError::new(
             sie_status::NonFiniteInput,
             format!(
-                "{name}[{index}] is {} (row {}, column {})",
+                "{name}[{index}] is {} (row index {}, column index {}, from 0)",
                 values[index],
                 index / cols,
                 index % cols

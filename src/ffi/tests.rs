@@ -125,7 +125,8 @@ fn status_strings_and_version() {
     assert_eq!(text(sie_status::Busy as u32), "context busy");
     assert_eq!(text(sie_status::Panic as u32), "internal panic");
     assert_eq!(text(sie_status::Cancelled as u32), "cancelled");
-    assert_eq!(text(10), "unknown status");
+    assert_eq!(text(sie_status::OutOfMemory as u32), "out of memory");
+    assert_eq!(text(11), "unknown status");
     assert_eq!(text(u32::MAX), "unknown status");
     let version = unsafe { CStr::from_ptr(sie_version_string()) }.to_str().unwrap();
     assert_eq!(version, env!("CARGO_PKG_VERSION"));
@@ -1013,7 +1014,7 @@ fn estimate_rejects_bad_input_before_running() {
         run(&residuals, 4, 3, null(), 0.0, &mut probabilities),
         sie_status::NonFiniteInput
     );
-    assert_eq!(ctx.last_error(), "residuals[7] is -inf (row 2, column 1)");
+    assert_eq!(ctx.last_error(), "residuals[7] is -inf (row index 2, column index 1, from 0)");
     let status = unsafe {
         sie_estimate_inliers(
             ctx.0,
