@@ -187,6 +187,8 @@ struct Summary {
     double noise_shape = 0.0;
     double inlier_fraction = 0.0;
     double rmse = 0.0;
+    /** How much the initial guess was corrected to be exactly rigid (sie_summary). */
+    double init_correction = 0.0;
     std::uint64_t source_count = 0;
     std::uint64_t correspondence_count = 0;
     std::uint32_t iterations = 0;
@@ -435,6 +437,7 @@ class Context {
         s.noise_shape = raw.noise_shape;
         s.inlier_fraction = raw.inlier_fraction;
         s.rmse = raw.rmse;
+        s.init_correction = raw.init_correction;
         s.source_count = raw.source_count;
         s.correspondence_count = raw.correspondence_count;
         s.iterations = raw.iterations;

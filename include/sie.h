@@ -416,6 +416,12 @@ typedef struct sie_summary {
      */
     double rmse;
     /**
+     * Largest change made to an entry of the initial guess's rotation block to make it an
+     * exact rotation (guesses up to 1e-3 from orthonormal are accepted); 0 without a guess.
+     * Above 1e-6 the guess was visibly rounded (e.g. printed with 5 digits).
+     */
+    double init_correction;
+    /**
      * Number of source points (length of the per-point result arrays).
      */
     uint64_t source_count;
@@ -727,9 +733,10 @@ sie_status sie_context_set_progress_callback(struct sie_context *ctx,
  * `sie_context_register_with_normals` to pass them).
  *
  * `init_T_target_source`: initial guess, 16 doubles ROW-major (T[4*row + col]; transpose
- * Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 and rotation
- * block orthonormal with det +1, both to 1e-6 (rounding from a matrix inverse is fine; the
- * guess is made exactly rigid); NULL = identity. `out_T_target_source` (16 doubles,
+ * Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 to 1e-6 and
+ * rotation block orthonormal to 1e-3 (max |R^T R - I|) with det +1. Rounding is fine: a matrix
+ * inverse's, or a published ground truth printed with 5 digits; the guess is made exactly
+ * rigid and `sie_summary.init_correction` says by how much. NULL = identity. `out_T_target_source` (16 doubles,
  * row-major) is written only on success; it may be the same array as the initial guess.
  *
  * On success the result is stored in the context for the `sie_context_get_*` functions; on

@@ -95,7 +95,9 @@ pub fn parse_cloud(bytes: &[u8], format: CloudFormat, non_finite: NonFinite) -> 
 }
 
 /// Reads a rigid transform: 16 numbers (4×4, row-major) or 12 (the top 3×4 rows), separated
-/// by whitespace and/or commas, `#` comments allowed. A 4×4 must end in the row 0 0 0 1.
+/// by whitespace and/or commas, `#` comments allowed. A 4×4 must end in the row 0 0 0 1. The
+/// rotation block is returned as written: [`crate::geometry::make_rigid`] checks it (published
+/// matrices are rounded) and makes it exact.
 pub fn read_transform(path: &Path) -> Result<Matrix4<f64>, String> {
     let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
     let text = fs::read_to_string(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
@@ -773,11 +775,11 @@ fn parse_transform(text: &str) -> Result<Matrix4<f64>, String> {
         n => return Err(format!("expected 16 numbers (4×4) or 12 (3×4), found {n}")),
     }
     let mut matrix = Matrix4::from_row_slice(&values);
-    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
     if !crate::geometry::homogeneous_last_row(&matrix) {
-        return Err(format!(
-            "the last row must be 0 0 0 1 for a rigid transform, found {last_row:?}"
-        ));
+        // The same message as everywhere, with the column-major hint when it applies.
+        return Err(crate::geometry::check_rigid(&matrix, "the matrix")
+            .err()
+            .unwrap_or_else(|| "the last row must be 0 0 0 1 for a rigid transform".into()));
     }
     // Printed rounding (e.g. 0.99999999999999978 from an inverted matrix) is removed.
     matrix.set_row(3, &nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));

@@ -9,7 +9,7 @@ use std::process::{Command, Output};
 use common::{data_dir, pose_error};
 use nalgebra::{Matrix4, Rotation3, Vector3};
 use serde_json::Value;
-use sie::geometry::transform_point;
+use sie::geometry::{make_rigid, transform_point};
 use sie::io::{read_cloud, read_transform};
 
 /// bun0 → bun4 from the Stanford bun.conf poses, as listed in pcl-test-bunny/README.md
@@ -149,7 +149,10 @@ fn bunny_point_to_plane_from_identity_meets_the_tolerance() {
     }
     // The JSON error is the error of the JSON transform, and `-o` holds that transform.
     let transform = json_transform(&report);
-    let truth = read_transform(&b.truth).unwrap();
+    // The ground truth is made exactly rigid before it is compared with.
+    let truth = make_rigid(&read_transform(&b.truth).unwrap(), "truth")
+        .unwrap()
+        .transform;
     let (rotation_again, translation_again) = pose_error(&transform, &truth);
     assert!((rotation_again - rotation).abs() < 1e-9 && (translation_again - translation).abs() < 1e-12);
     let from_file = text_transform(&fs::read_to_string(&written).unwrap());
@@ -617,6 +620,101 @@ fn pcd_holding_more_points_than_declared_is_read_with_a_warning() {
     assert_eq!(report["target"]["warnings"].as_array().unwrap().len(), 1);
 }
 
+/// Ground truths are published rounded (3DMatch's gt.log, GeoTransformer's gt.npy, PCL's
+/// office matrix: orthonormal to 5e-5–7e-5). `--init` refused them (exit 2, "is the matrix
+/// column-major?", which they are not) while `--ground-truth` took them as they were. Both
+/// now accept up to 1e-3, make them exactly rigid and say so; the column-major hint comes only
+/// when the transpose is valid.
+#[test]
+fn rounded_transform_files_are_accepted_and_made_rigid() {
+    let dir = scratch("rounded");
+    let cloud = dir.join("cloud.xyz");
+    let points: String = (0..600)
+        .map(|i| {
+            let f = i as f64;
+            format!(
+                "{} {} {}\n",
+                (f * 0.37).sin(),
+                (f * 0.91).cos() * 0.8,
+                (f * 0.13).sin() * 0.5 + 0.001 * f
+            )
+        })
+        .collect();
+    fs::write(&cloud, points).unwrap();
+    let truth = Rotation3::from_euler_angles(0.02, -0.03, 0.05);
+    let matrix = |rows: [[f64; 4]; 3], digits: i32| -> String {
+        let scale = 10f64.powi(digits);
+        rows.iter()
+            .map(|row| row.map(|v| format!("{}", (v * scale).round() / scale)).join(" ") + "\n")
+            .collect()
+    };
+    let r = truth.matrix();
+    let rows = [0, 1, 2].map(|i| [r[(i, 0)], r[(i, 1)], r[(i, 2)], [0.01, -0.02, 0.005][i]]);
+    let rounded = dir.join("rounded.txt");
+    fs::write(&rounded, matrix(rows, 4)).unwrap();
+    let c = arg(&cloud);
+    let output = sie(&[
+        "register",
+        c,
+        c,
+        "--init",
+        arg(&rounded),
+        "--ground-truth",
+        arg(&rounded),
+        "--json",
+    ]);
+    let stderr = text(&output.stderr);
+    assert!(matches!(output.status.code(), Some(0 | 1)), "{stderr}");
+    assert!(
+        stderr.contains("note: the --init rotation was rounded")
+            && stderr.contains("note: the --ground-truth"),
+        "{stderr}"
+    );
+    let report = json(&output);
+    for key in ["init_correction", "ground_truth_correction"] {
+        let correction = report[key].as_f64().unwrap();
+        assert!(correction > 1e-6 && correction < 1e-4, "{key}: {correction}");
+    }
+    // Without the options the fields are null.
+    let report = json(&sie(&["register", c, c, "--json", "-q"]));
+    assert!(report["init_correction"].is_null() && report["ground_truth_correction"].is_null());
+
+    // More than rounding: refused, and transposing would not help, so no column-major hint.
+    let mut skewed_rows = rows;
+    skewed_rows[0][1] += 3e-3;
+    let skewed = dir.join("skewed.txt");
+    fs::write(&skewed, matrix(skewed_rows, 6)).unwrap();
+    // A rigid transform written column-major: the hint is right there.
+    let full = |rows: [[f64; 4]; 3]| {
+        let mut all = rows.to_vec();
+        all.push([0.0, 0.0, 0.0, 1.0]);
+        all
+    };
+    let transposed: String = (0..4)
+        .map(|col| {
+            (0..4)
+                .map(|row| format!("{}", full(rows)[row][col]))
+                .collect::<Vec<_>>()
+                .join(" ")
+                + "\n"
+        })
+        .collect();
+    let column_major = dir.join("column_major.txt");
+    fs::write(&column_major, transposed).unwrap();
+    for option in ["--init", "--ground-truth"] {
+        for (file, expected, hint) in [
+            (&skewed, "not orthonormal", false),
+            (&column_major, "last row", true),
+        ] {
+            let output = sie(&["register", c, c, option, arg(file)]);
+            let stderr = text(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{stderr}");
+            assert!(stderr.contains(expected) && stderr.contains(option), "{stderr}");
+            assert_eq!(stderr.contains("column-major"), hint, "{stderr}");
+        }
+    }
+}
+
 /// Runs the `sie` binary with its address space capped at `limit` bytes.
 fn sie_with_memory_limit(args: &[&str], limit: u64) -> Output {
     use std::os::unix::process::CommandExt;
@@ -719,7 +817,10 @@ fn bad_options_give_one_line_and_exit_code_2() {
         (vec!["--plot", "fig.png", "--cost", "l2"], "fits none"),
         (vec!["--aligned", "out.ply"], ".pcd, .xyz or .txt"),
         (vec!["-o", "/no/such/folder/T.txt"], "does not exist"),
-        (vec!["--init", arg(&not_rigid)], "initial guess"),
+        (
+            vec!["--init", arg(&not_rigid)],
+            "(--init): the rotation part is not orthonormal",
+        ),
     ];
     for (extra, expected) in cases {
         let mut args = vec!["register", c, c];

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
-use sie::geometry::{rotation_part, transform_point, vector};
+use sie::geometry::{NOTABLE_CORRECTION, Rigid, make_rigid, rotation_part, transform_point, vector};
 use sie::io::{
     CloudFile, NonFinite, read_cloud_with, read_transform, write_cloud_pcd_ascii, write_cloud_xyz,
 };
@@ -56,14 +56,28 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let config = args.config()?;
     check_outputs(args, &config)?;
     let init = match (&args.init, &args.init_pose) {
-        (Some(path), _) => Some(read_transform(path).map_err(CliError::new)?),
-        (None, Some(values)) => Some(pose_matrix(values)?),
+        (Some(path), _) => Some(rigid_file(path, "--init")?),
+        (None, Some(values)) => Some(Rigid {
+            transform: pose_matrix(values)?,
+            correction: 0.0,
+        }),
         (None, None) => None,
     };
     let truth = match &args.ground_truth {
-        Some(path) => Some(read_transform(path).map_err(CliError::new)?),
+        Some(path) => Some(rigid_file(path, "--ground-truth")?),
         None => None,
     };
+    if !args.quiet {
+        for (rigid, option) in [(&init, "--init"), (&truth, "--ground-truth")] {
+            if let Some(rigid) = rigid.as_ref().filter(|r| r.correction > NOTABLE_CORRECTION) {
+                eprintln!(
+                    "sie: note: the {option} rotation was rounded (an entry changed by {:.1e} to make it \
+                     exactly rigid)",
+                    rigid.correction
+                );
+            }
+        }
+    }
 
     // The live table would interleave with nothing useful in JSON mode; there the trace goes
     // into the report.
@@ -118,7 +132,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             &source.points,
             &target.points,
             target_normals,
-            init.as_ref(),
+            init.as_ref().map(|rigid| &rigid.transform),
             &config,
             hooks,
         )
@@ -128,7 +142,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let seconds = started.elapsed().as_secs_f64();
 
     let ground_truth = truth.map(|t| {
-        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t);
+        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t.transform);
         GroundTruthError {
             rotation_error_deg,
             translation_error,
@@ -185,6 +199,8 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             seconds,
             read_seconds,
             ground_truth,
+            init_correction: init.map(|rigid| rigid.correction),
+            ground_truth_correction: truth.map(|rigid| rigid.correction),
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;
@@ -250,6 +266,14 @@ fn check_outputs(args: &RegisterArgs, config: &RegistrationConfig) -> Result<(),
         }
     }
     Ok(())
+}
+
+/// A transform file made exactly rigid: rotation blocks within 1e-3 of orthonormal are
+/// accepted (published ground truths are rounded to ~5e-5), anything else is an error naming
+/// the file and the option.
+fn rigid_file(path: &Path, option: &str) -> Result<Rigid, CliError> {
+    let matrix = read_transform(path).map_err(|e| CliError::new(format!("{option}: {e}")))?;
+    make_rigid(&matrix, &format!("{} ({option})", path.display())).map_err(CliError::new)
 }
 
 /// A reader error as one line, in this tool's terms: the library's hint names its API, and a

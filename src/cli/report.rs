@@ -135,6 +135,10 @@ pub struct JsonReport<'a> {
     pub seconds: f64,
     pub read_seconds: f64,
     pub ground_truth: Option<GroundTruthError>,
+    /// Largest change made to a rotation entry of `--init` / `--ground-truth` to make it
+    /// exactly rigid (null without the option; above 1e-6 the file was visibly rounded).
+    pub init_correction: Option<f64>,
+    pub ground_truth_correction: Option<f64>,
     /// One row per iteration with `--trace`, else empty.
     pub trace: Vec<TraceRow>,
 }

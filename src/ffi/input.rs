@@ -7,6 +7,7 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::sie_status;
+use crate::geometry::Rigid;
 use crate::memory::try_vec;
 use crate::registration::Point;
 
@@ -158,19 +159,20 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
     Ok(points)
 }
 
-/// Reads an optional row-major 4x4 rigid transform; NULL means identity (`None`).
+/// Reads an optional row-major 4x4 rigid transform (`geometry::make_rigid`: rotation block
+/// within 1e-3 of orthonormal, made exact); NULL means identity (`None`).
 ///
 /// # Safety
 /// `ptr` is NULL or valid for 16 reads of f64.
-pub(crate) unsafe fn read_transform(ptr: *const f64, name: &str) -> Result<Option<Matrix4<f64>>, FfiError> {
+pub(crate) unsafe fn read_transform(ptr: *const f64, name: &str) -> Result<Option<Rigid>, FfiError> {
     if ptr.is_null() {
         return Ok(None);
     }
     // SAFETY: forwarded contract.
     let values = unsafe { read_array(ptr, 16, name) }?;
     let matrix = Matrix4::from_row_slice(&values);
-    crate::geometry::check_rigid(&matrix, name).map_err(FfiError::invalid)?;
-    Ok(Some(matrix))
+    let rigid = crate::geometry::make_rigid(&matrix, name).map_err(FfiError::invalid)?;
+    Ok(Some(rigid))
 }
 
 /// Row-major copy of a 4x4 matrix (nalgebra stores column-major).

@@ -207,6 +207,10 @@ pub struct sie_summary {
     pub inlier_fraction: f64,
     /// sqrt(sum P*|r|^2 / sum P), input units (plane distance for point-to-plane).
     pub rmse: f64,
+    /// Largest change made to an entry of the initial guess's rotation block to make it an
+    /// exact rotation (guesses up to 1e-3 from orthonormal are accepted); 0 without a guess.
+    /// Above 1e-6 the guess was visibly rounded (e.g. printed with 5 digits).
+    pub init_correction: f64,
     /// Number of source points (length of the per-point result arrays).
     pub source_count: u64,
     /// Number of source points matched to a target point.
@@ -282,6 +286,8 @@ pub(crate) struct ContextState {
     pub(crate) progress_callback: Option<ProgressCallback>,
     /// The last successful registration; cleared by a failed one and after a panic.
     pub(crate) result: Option<RegistrationResult>,
+    /// How much its initial guess was corrected to be exactly rigid (`sie_summary`).
+    pub(crate) init_correction: f64,
 }
 
 /// What the call that owns a context may touch.

@@ -20,7 +20,7 @@ fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> 
     })
 }
 
-fn summary_of(result: &RegistrationResult) -> sie_summary {
+fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary {
     let first_three = |values: &[f64]| {
         let mut out = [0.0; 3];
         for (o, v) in out.iter_mut().zip(values) {
@@ -41,6 +41,7 @@ fn summary_of(result: &RegistrationResult) -> sie_summary {
         noise_shape: result.noise_shape,
         inlier_fraction: result.inlier_fraction,
         rmse: result.rmse,
+        init_correction,
         source_count: result.probabilities.len() as u64,
         correspondence_count: result.correspondences.iter().filter(|&&c| c >= 0).count() as u64,
         iterations: result.iterations,
@@ -96,7 +97,7 @@ pub unsafe extern "C" fn sie_context_get_summary(
     boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out, "out")?;
         let state = &*call.state;
-        let summary = summary_of(stored_result(state)?);
+        let summary = summary_of(stored_result(state)?, state.init_correction);
         // SAFETY: checked above; writable per the contract.
         unsafe { write_output(out, &[summary]) };
         Ok(())

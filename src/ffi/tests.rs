@@ -675,12 +675,20 @@ fn transforms_are_row_major_and_must_be_rigid() {
     let row_major_t = [
         c, -s, 0.0, 1.0, s, c, 0.0, 2.0, 0.0, 0.0, 1.0, 3.0, 0.0, 0.0, 0.0, 1.0,
     ];
-    let matrix = unsafe { read_transform(row_major_t.as_ptr(), "init") }
+    let rigid = unsafe { read_transform(row_major_t.as_ptr(), "init") }
         .unwrap()
         .unwrap();
+    let matrix = rigid.transform;
     assert_eq!(matrix[(0, 3)], 1.0);
-    assert_eq!(matrix[(1, 0)], s);
-    assert_eq!(row_major(&matrix), row_major_t);
+    assert!((matrix[(1, 0)] - s).abs() < 1e-15);
+    let round_trip = row_major(&matrix);
+    assert!(
+        round_trip
+            .iter()
+            .zip(&row_major_t)
+            .all(|(a, b)| (a - b).abs() < 1e-15)
+    );
+    assert!(rigid.correction < 1e-15);
     assert_eq!(unsafe { read_transform(null(), "init") }.unwrap(), None);
 
     let mut bad = row_major_t;
@@ -705,6 +713,100 @@ fn transforms_are_row_major_and_must_be_rigid() {
     let error = unsafe { read_transform(mirror.as_ptr(), "init") }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
     assert!(error.message.contains("reflection"), "{}", error.message);
+}
+
+/// Published ground truths are rounded (3DMatch's gt.log, GeoTransformer's gt.npy and PCL's
+/// office matrix are orthonormal to 5e-5–7e-5): accepted within 1e-3, made exact, and the
+/// correction reported in the summary; the transpose is suggested only when it would be valid.
+#[test]
+fn rounded_guesses_are_made_rigid_and_the_correction_reported() {
+    let rotation = nalgebra::Rotation3::from_euler_angles(0.4, -0.7, 2.1);
+    let mut t = Matrix4::identity();
+    t.fixed_view_mut::<3, 3>(0, 0).copy_from(rotation.matrix());
+    t[(0, 3)] = 1.25;
+    // Printed with 4 decimals: orthonormal to ~5e-5, like the published matrices.
+    let rounded = row_major(&t).map(|v| (v * 1e4).round() / 1e4);
+    let as_matrix = Matrix4::from_row_slice(&rounded);
+    let r = as_matrix.fixed_view::<3, 3>(0, 0).into_owned();
+    let error = (r.transpose() * r - nalgebra::Matrix3::identity()).amax();
+    assert!(error > 1e-5 && error < 2e-4, "{error}");
+    let rigid = unsafe { read_transform(rounded.as_ptr(), "init") }
+        .unwrap()
+        .unwrap();
+    let exact = rigid.transform.fixed_view::<3, 3>(0, 0).into_owned();
+    assert!((exact.transpose() * exact - nalgebra::Matrix3::identity()).amax() < 1e-15);
+    assert!(
+        rigid.correction > 1e-6 && rigid.correction < 1e-4,
+        "{}",
+        rigid.correction
+    );
+    assert!((rigid.transform - t).amax() < 1e-4);
+
+    // Through a registration: the summary carries the correction.
+    let ctx = Context::new();
+    let points: Vec<f32> = (0..300)
+        .flat_map(|i| [(i % 7) as f32, (i % 11) as f32 * 0.5, (i % 13) as f32 * 0.3])
+        .collect();
+    let mut out = [0.0; 16];
+    let status = unsafe {
+        sie_context_register_correspondences(
+            ctx.0,
+            points.as_ptr(),
+            0,
+            points.as_ptr(),
+            0,
+            100,
+            rounded.as_ptr(),
+            out.as_mut_ptr(),
+        )
+    };
+    assert_eq!(status, sie_status::Ok, "{}", ctx.last_error());
+    let mut summary = sie_summary::default();
+    assert_eq!(
+        unsafe { sie_context_get_summary(ctx.0, &mut summary) },
+        sie_status::Ok
+    );
+    assert_eq!(summary.init_correction, rigid.correction);
+    let status = unsafe {
+        sie_context_register_correspondences(
+            ctx.0,
+            points.as_ptr(),
+            0,
+            points.as_ptr(),
+            0,
+            100,
+            null(),
+            out.as_mut_ptr(),
+        )
+    };
+    assert_eq!(status, sie_status::Ok);
+    assert_eq!(
+        unsafe { sie_context_get_summary(ctx.0, &mut summary) },
+        sie_status::Ok
+    );
+    assert_eq!(summary.init_correction, 0.0);
+
+    // Beyond 1e-3 it is not a rotation; transposing would not help, so no hint.
+    let mut skewed = row_major(&t);
+    skewed[1] += 2e-3;
+    let error = unsafe { read_transform(skewed.as_ptr(), "init") }.unwrap_err();
+    assert!(
+        error.message.contains("orthonormal") && !error.message.contains("column-major"),
+        "{}",
+        error.message
+    );
+    // A rigid transform stored column-major: its transpose is valid, so the hint is given.
+    let column_major: Vec<f64> = (0..16).map(|k| t[(k % 4, k / 4)]).collect();
+    let error = unsafe { read_transform(column_major.as_ptr(), "init") }.unwrap_err();
+    assert!(
+        error.message.contains("last row") && error.message.contains("column-major"),
+        "{}",
+        error.message
+    );
+    // Scaled: neither it nor its transpose is rigid.
+    let scaled = row_major(&(t * 2.0));
+    let error = unsafe { read_transform(scaled.as_ptr(), "init") }.unwrap_err();
+    assert!(!error.message.contains("column-major"), "{}", error.message);
 }
 
 #[test]
@@ -1014,7 +1116,10 @@ fn estimate_rejects_bad_input_before_running() {
         run(&residuals, 4, 3, null(), 0.0, &mut probabilities),
         sie_status::NonFiniteInput
     );
-    assert_eq!(ctx.last_error(), "residuals[7] is -inf (row index 2, column index 1, from 0)");
+    assert_eq!(
+        ctx.last_error(),
+        "residuals[7] is -inf (row index 2, column index 1, from 0)"
+    );
     let status = unsafe {
         sie_estimate_inliers(
             ctx.0,

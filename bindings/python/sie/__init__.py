@@ -138,6 +138,7 @@ class Summary:
     noise_shape: float
     inlier_fraction: float
     rmse: float
+    init_correction: float  # how much the initial guess was corrected to be exactly rigid
     source_count: int
     correspondence_count: int
     iterations: int
@@ -518,7 +519,7 @@ class Context:
         self._check(_lib.sie_context_get_summary(self._handle, ctypes.byref(raw)))
         return Summary(
             tuple(raw.sigma), tuple(raw.beta), raw.penalty, raw.noise_shape, raw.inlier_fraction, raw.rmse,
-            int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
+            raw.init_correction, int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
             _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
         )
 

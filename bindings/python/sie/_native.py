@@ -27,6 +27,7 @@ class sie_summary(ctypes.Structure):
         ("noise_shape", ctypes.c_double),
         ("inlier_fraction", ctypes.c_double),
         ("rmse", ctypes.c_double),
+        ("init_correction", ctypes.c_double),
         ("source_count", ctypes.c_uint64),
         ("correspondence_count", ctypes.c_uint64),
         ("iterations", ctypes.c_uint32),
