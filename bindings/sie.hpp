@@ -332,6 +332,11 @@ class Context {
         check(sie_context_set_skip_non_finite(get(), enabled));
         return *this;
     }
+    /** Drop points at exactly 0 0 0 (how depth sensors mark invalid pixels) the same way. */
+    Context &set_skip_origin(bool enabled) {
+        check(sie_context_set_skip_origin(get(), enabled));
+        return *this;
+    }
 
     /** Installs a per-point noise callback (an empty function removes it). The context keeps
      * the function alive for as long as it is installed, also across moves. */

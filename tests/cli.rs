@@ -590,6 +590,34 @@ fn bad_files_give_one_line_and_exit_code_2() {
         text(&output.stderr)
     );
     assert_eq!(json(&output)["source"]["skipped_non_finite"], 1);
+    // Depth-sensor style invalid points at 0 0 0 are dropped on request and counted.
+    let with_origin = dir.join("origin.xyz");
+    fs::write(
+        &with_origin,
+        "0 0 0\n1 0 0\n0 0 0\n0 1 0\n0 0 1\n1 1 0\n1 0 1\n0 1 1\n1 1 1\n",
+    )
+    .unwrap();
+    let output = sie(&[
+        "register",
+        arg(&with_origin),
+        arg(&good),
+        "--skip-origin",
+        "--json",
+        "-q",
+    ]);
+    assert!(
+        matches!(output.status.code(), Some(0 | 1)),
+        "{}",
+        text(&output.stderr)
+    );
+    let report = json(&output);
+    assert_eq!(
+        (
+            report["source"]["skipped_origin"].as_u64(),
+            report["target"]["skipped_origin"].as_u64()
+        ),
+        (Some(2), Some(1))
+    );
 }
 
 /// A PCD file holding more points than its header declares: the declared points are read (as

@@ -278,6 +278,73 @@ fn non_finite_points_are_rejected_by_index_or_skipped_on_request() {
     assert_eq!(ctx.correspondences(a.len())[11], -1);
 }
 
+/// Depth frames mark invalid pixels 0 0 0 (30 % here, in both clouds). Those points are
+/// exact duplicates (each location is indexed once, so they cost no more than any other
+/// point) and, kept, they match each other with zero residual. `sie_context_set_skip_origin`
+/// drops them like non-finite points: probability 0, no match, target indices unchanged.
+#[test]
+fn invalid_depth_pixels_at_the_origin_are_dropped_on_request() {
+    let scene = room_scene(6000, 0.01, 21);
+    let (mut source, mut target) = (scene.source.clone(), scene.target.clone());
+    let invalid = |i: usize| (i * 7919) % 10 < 3;
+    for (i, p) in source.iter_mut().enumerate().filter(|(i, _)| invalid(*i)) {
+        *p = [0.0, if i % 2 == 0 { 0.0 } else { -0.0 }, 0.0];
+    }
+    for (_, p) in target.iter_mut().enumerate().filter(|(i, _)| invalid(*i + 1)) {
+        *p = [0.0; 3];
+    }
+    let ctx = Context::new();
+    let mut out = [SENTINEL; 16];
+    // SAFETY: live context.
+    assert_eq!(
+        unsafe { sie_context_set_skip_origin(ctx.0, true) },
+        sie_status::Ok
+    );
+    assert_eq!(
+        ctx.register(&source, &target, &mut out),
+        sie_status::Ok,
+        "{}",
+        ctx.last_error()
+    );
+    let truth = scene.t_target_source;
+    let translation_error = ((0..3)
+        .map(|r| (out[4 * r + 3] - truth[(r, 3)]).powi(2))
+        .sum::<f64>())
+    .sqrt();
+    assert!(translation_error < 0.01, "{translation_error}");
+    let (p, c) = (ctx.probabilities(source.len()), ctx.correspondences(source.len()));
+    for i in (0..source.len()).filter(|&i| invalid(i)) {
+        assert_eq!((p[i], c[i]), (0.0, -1), "source {i}");
+    }
+    assert!(c.iter().all(|&t| t < 0 || target[t as usize] != [0.0; 3]));
+    assert_eq!(ctx.summary().source_count, source.len() as u64);
+    // Kept (the default), point-to-point matches the invalid pixels to each other (point-to-
+    // plane finds no normal at a location of identical points, so it never matches them).
+    for (skip, metric) in [
+        (false, sie_metric::PointToPoint),
+        (true, sie_metric::PointToPoint),
+    ] {
+        // SAFETY: live context.
+        unsafe {
+            assert_eq!(sie_context_set_skip_origin(ctx.0, skip), sie_status::Ok);
+            assert_eq!(sie_context_set_metric(ctx.0, metric as u32), sie_status::Ok);
+        }
+        assert_eq!(ctx.register(&source, &target, &mut out), sie_status::Ok);
+        let c = ctx.correspondences(source.len());
+        let origin_matched = (0..source.len())
+            .filter(|&i| invalid(i) && c[i] >= 0 && target[c[i] as usize] == [0.0; 3])
+            .count();
+        let error = ((0..3)
+            .map(|r| (out[4 * r + 3] - truth[(r, 3)]).powi(2))
+            .sum::<f64>())
+        .sqrt();
+        println!(
+            "point-to-point, skip_origin {skip}: {origin_matched} invalid pixels matched, translation error {error}"
+        );
+        assert_eq!(origin_matched > 0, !skip);
+    }
+}
+
 // ---------------------------------------------------------------- degenerate geometry
 
 fn assert_no_nan(ctx: &Context, n: usize, out: &[f64; 16]) {

@@ -148,8 +148,8 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             translation_error,
         }
     });
-    let source_report = cloud_report(&args.source, &source);
-    let target_report = cloud_report(&args.target, &target);
+    let source_report = cloud_report(&args.source, &source, config.skip_origin);
+    let target_report = cloud_report(&args.target, &target, config.skip_origin);
     let transform_text = format_transform(&result.transform, "");
 
     // Files first, so a failed write is the last thing the user reads; the result is printed
@@ -289,11 +289,15 @@ fn input_error(message: String) -> CliError {
     )
 }
 
-fn cloud_report(path: &Path, cloud: &CloudFile) -> CloudReport {
+fn cloud_report(path: &Path, cloud: &CloudFile, skip_origin: bool) -> CloudReport {
     CloudReport {
         path: path.display().to_string(),
         points: cloud.points.len(),
         skipped_non_finite: cloud.skipped_non_finite,
+        skipped_origin: match skip_origin {
+            true => cloud.points.iter().filter(|p| **p == [0.0; 3]).count(),
+            false => 0,
+        },
         warnings: cloud.warnings.clone(),
     }
 }

@@ -63,6 +63,8 @@ pub struct CloudReport {
     pub points: usize,
     /// Points dropped for a non-finite coordinate (`--skip-invalid`).
     pub skipped_non_finite: usize,
+    /// Points at exactly 0 0 0 dropped by the registration (`--skip-origin`).
+    pub skipped_origin: usize,
     /// What the reader noticed but read past (also printed on stderr, `-q` or not), e.g. a PCD
     /// file holding more points than its header declares.
     pub warnings: Vec<String>,
@@ -175,9 +177,11 @@ pub struct SummaryContext<'a> {
 pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String {
     let mut text = String::new();
     let cloud = |c: &CloudReport| {
-        let skipped = match c.skipped_non_finite {
-            0 => String::new(),
-            n => format!(" ({n} non-finite skipped)"),
+        let skipped = match (c.skipped_non_finite, c.skipped_origin) {
+            (0, 0) => String::new(),
+            (n, 0) => format!(" ({n} non-finite skipped)"),
+            (0, o) => format!(" ({o} at 0 0 0 skipped)"),
+            (n, o) => format!(" ({n} non-finite and {o} at 0 0 0 skipped)"),
         };
         format!("{}: {} points{skipped}", c.path, c.points)
     };

@@ -336,6 +336,25 @@ pub unsafe extern "C" fn sie_context_set_skip_non_finite(ctx: *mut sie_context, 
     }
 }
 
+/// Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
+/// `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
+/// mark invalid pixels so; they are not measurements, and point-to-point matches them to each
+/// other (at residual 0 at the identity). Dropped source points report inlier probability 0
+/// and target index -1. Default: false (0 0 0 can be a real point).
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_skip_origin(ctx: *mut sie_context, enabled: bool) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.skip_origin = enabled;
+            Ok(())
+        })
+    }
+}
+
 /// Installs (or with NULL `progress_fn`, removes) the per-iteration progress callback; see
 /// `sie_progress_fn`. `user_data` is passed back unchanged and never freed by the library.
 ///

@@ -44,15 +44,16 @@ pub fn register_correspondences(
             target.len()
         )));
     }
-    if config.skip_non_finite {
+    if config.skip_non_finite || config.skip_origin {
         let kept: Vec<u32> = (0..source.len() as u32)
-            .filter(|&i| is_finite(&source[i as usize]) && is_finite(&target[i as usize]))
+            .filter(|&i| keeps(config, &source[i as usize]) && keeps(config, &target[i as usize]))
             .collect();
         if kept.len() < source.len() {
             let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
             let (source_kept, target_kept) = (pick(source), pick(target));
             let finite = RegistrationConfig {
                 skip_non_finite: false,
+                skip_origin: false,
                 ..config.clone()
             };
             let result = register_correspondences(&source_kept, &target_kept, init, &finite, hooks)?;
@@ -74,19 +75,25 @@ fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())
 }
 
-/// Indices of the finite points, or `None` when every point is finite (nothing to copy).
-fn finite_indices(points: &[Point]) -> Option<Vec<u32>> {
-    if points.iter().all(is_finite) {
+/// Whether a point survives `skip_non_finite` / `skip_origin` (0.0 == -0.0).
+fn keeps(config: &RegistrationConfig, p: &Point) -> bool {
+    (!config.skip_non_finite || is_finite(p)) && !(config.skip_origin && *p == [0.0; 3])
+}
+
+/// Indices of the points kept, or `None` when every point is (nothing to copy).
+fn kept_indices(points: &[Point], config: &RegistrationConfig) -> Option<Vec<u32>> {
+    if points.iter().all(|p| keeps(config, p)) {
         return None;
     }
     Some(
         (0..points.len() as u32)
-            .filter(|&i| is_finite(&points[i as usize]))
+            .filter(|&i| keeps(config, &points[i as usize]))
             .collect(),
     )
 }
 
-/// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
+/// `register_clouds` on the kept points only (`skip_non_finite`, `skip_origin`); a non-finite
+/// normal becomes "no normal".
 fn register_finite_clouds(
     source: &[Point],
     target: &[Point],
@@ -97,10 +104,11 @@ fn register_finite_clouds(
 ) -> Result<RegistrationResult, Error> {
     let finite = RegistrationConfig {
         skip_non_finite: false,
+        skip_origin: false,
         ..config.clone()
     };
-    let source_kept = finite_indices(source);
-    let target_kept = finite_indices(target);
+    let source_kept = kept_indices(source, config);
+    let target_kept = kept_indices(target, config);
     let pick = |points: &[Point], kept: &Option<Vec<u32>>| -> Vec<Point> {
         match kept {
             Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
@@ -174,7 +182,7 @@ pub fn register_clouds(
             )));
         }
     }
-    if config.skip_non_finite {
+    if config.skip_non_finite || config.skip_origin {
         return register_finite_clouds(source, target, target_normals, init, config, hooks);
     }
     require_points("source", source.len(), 3)?;

@@ -408,6 +408,11 @@ class Context:
         self._check(_lib.sie_context_set_skip_non_finite(self._handle, bool(enabled)))
         return self
 
+    def set_skip_origin(self, enabled: bool) -> "Context":
+        """Drop points at exactly 0 0 0 (depth sensors' invalid pixels) like non-finite ones."""
+        self._check(_lib.sie_context_set_skip_origin(self._handle, bool(enabled)))
+        return self
+
     def set_progress_callback(self, function: Optional[ProgressCallback]) -> "Context":
         """function(entry: TraceEntry) after every iteration, on the calling thread; returning
         False cancels the registration (None or True continue). Whatever it raises cancels it and

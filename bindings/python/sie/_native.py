@@ -103,6 +103,7 @@ _SIGNATURES = {
     "sie_context_set_seed": (status_t, [_ctx, ctypes.c_uint64]),
     "sie_context_set_trace": (status_t, [_ctx, ctypes.c_bool]),
     "sie_context_set_skip_non_finite": (status_t, [_ctx, ctypes.c_bool]),
+    "sie_context_set_skip_origin": (status_t, [_ctx, ctypes.c_bool]),
     "sie_context_set_progress_callback": (status_t, [_ctx, PROGRESS_FN, ctypes.c_void_p]),
     "sie_context_register": (
         status_t,
