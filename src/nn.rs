@@ -298,7 +298,7 @@ fn length_without_overflow(v: &Point, largest: f64) -> f64 {
 /// Groups exact duplicates (−0.0 equals 0.0): `None` when every point is distinct, otherwise
 /// each distinct location with its input indices, locations in order of first appearance.
 ///
-/// Open addressing over u32 ids (load ≤ 2/3): 4–8 bytes per point while it runs, and one pass
+/// Open addressing over u32 ids (load ≤ 2/3): 6–12 bytes per point while it runs, one pass
 /// when nothing repeats (the common case).
 fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, String> {
     let n = points.len();
