@@ -10,7 +10,7 @@ use nalgebra::Matrix4;
 use sie::memory::{cloud_registration_bytes, correspondence_registration_bytes, estimate_bytes};
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
-    Hooks, Metric, Point, RegistrationConfig, SieOptions, estimate_inliers, register_clouds,
+    Hooks, Metric, NoiseModel, Point, RegistrationConfig, SieOptions, estimate_inliers, register_clouds,
     register_correspondences,
 };
 
@@ -83,10 +83,13 @@ fn working_set_bounds_cover_the_measured_peaks() {
         for metric in [Metric::PointToPlane, Metric::PointToPoint] {
             // Skipping non-finite points copies the clouds once more: the larger case.
             for skip_non_finite in [true] {
+                // Per-point noise scales (the depth model here, a callback alike) add two
+                // arrays of σ.
                 let config = RegistrationConfig {
                     metric,
                     skip_non_finite,
                     record_trace: true,
+                    noise: NoiseModel::QuadraticDepth,
                     ..RegistrationConfig::default()
                 };
                 // Equal sizes, and each cloud ten times the other, so neither per-point
