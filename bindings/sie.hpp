@@ -56,6 +56,7 @@ enum class Status : std::uint32_t {
     BufferTooSmall = SIE_STATUS_BUFFER_TOO_SMALL,
     Busy = SIE_STATUS_BUSY,
     Cancelled = SIE_STATUS_CANCELLED, // not thrown by align(): the result is kept (StopReason::Cancelled)
+    OutOfMemory = SIE_STATUS_OUT_OF_MEMORY,
     Panic = SIE_STATUS_PANIC,
 };
 
@@ -186,6 +187,8 @@ struct Summary {
     double noise_shape = 0.0;
     double inlier_fraction = 0.0;
     double rmse = 0.0;
+    /** How much the initial guess was corrected to be exactly rigid (sie_summary). */
+    double init_correction = 0.0;
     std::uint64_t source_count = 0;
     std::uint64_t correspondence_count = 0;
     std::uint32_t iterations = 0;
@@ -330,6 +333,11 @@ class Context {
         check(sie_context_set_skip_non_finite(get(), enabled));
         return *this;
     }
+    /** Drop points at exactly 0 0 0 (how depth sensors mark invalid pixels) the same way. */
+    Context &set_skip_origin(bool enabled) {
+        check(sie_context_set_skip_origin(get(), enabled));
+        return *this;
+    }
 
     /** Installs a per-point noise callback (an empty function removes it). The context keeps
      * the function alive for as long as it is installed, also across moves. */
@@ -435,6 +443,7 @@ class Context {
         s.noise_shape = raw.noise_shape;
         s.inlier_fraction = raw.inlier_fraction;
         s.rmse = raw.rmse;
+        s.init_correction = raw.init_correction;
         s.source_count = raw.source_count;
         s.correspondence_count = raw.correspondence_count;
         s.iterations = raw.iterations;

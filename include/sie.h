@@ -86,8 +86,10 @@ enum sie_status
      */
     SIE_STATUS_BUFFER_TOO_SMALL = 7,
     /**
-     * The context is in use by a registration further up the stack (a call from inside its
-     * noise callback); nothing was changed.
+     * The context is in use by another call: a registration further up the stack (a call
+     * from inside its noise or progress callback) or, against the one-call-at-a-time
+     * contract, a call on another thread. Nothing was changed, not even the context's error
+     * message (`sie_context_last_error` gives a fixed text while the context is in use).
      */
     SIE_STATUS_BUSY = 8,
     /**
@@ -96,6 +98,12 @@ enum sie_status
      * `out_T_target_source` and the result stored (stop reason CANCELLED).
      */
     SIE_STATUS_CANCELLED = 9,
+    /**
+     * Not enough memory for this input: a buffer sized by a count, or the working set of the
+     * registration (asked for before it starts), could not be allocated; nothing was written
+     * and the process is unharmed. The message says how much was needed.
+     */
+    SIE_STATUS_OUT_OF_MEMORY = 10,
     /**
      * An internal error (a Rust panic) was caught; the stored result was discarded. Please
      * report it with the message from `sie_context_last_error`.
@@ -300,9 +308,14 @@ typedef uint32_t sie_cloud;
  * A registration context: configuration, noise callback, last result and last error.
  * Create with `sie_context_new`, free with `sie_context_free`.
  *
- * A context may be used from any thread, but by one thread at a time (this includes the
+ * A context may be used from any thread, but by one call at a time (this includes the
  * functions taking `const sie_context*`). Distinct contexts are independent; the library has
  * no global state.
+ *
+ * Every call first takes the context (a try-lock, `busy`) and gives it back when it returns; a
+ * call that finds it taken returns BUSY without touching anything else. So misuse (a call
+ * from inside a callback, or from a second thread) is always refused, never a data race, and
+ * the state is only ever reached through the one owning call.
  */
 typedef struct sie_context sie_context;
 
@@ -316,6 +329,11 @@ typedef struct sie_context sie_context;
  * registration with `SIE_STATUS_CALLBACK_FAILED` and the value in the message. It must not
  * unwind or throw, and must not free the context; other calls on the same context from inside
  * it return `SIE_STATUS_BUSY`. The pointers are valid only during the call.
+ *
+ * Never leave it with `longjmp` (or a C++ exception through C frames): that skips the
+ * library's cleanup, so the context stays in use for good (every later call on it returns
+ * BUSY, `sie_context_free` ignores it and it leaks) along with the registration's memory.
+ * Return non-zero instead, and longjmp after the registration has returned.
  */
 typedef int32_t (*sie_noise_fn)(void *user_data,
                                 uint32_t cloud,
@@ -335,8 +353,7 @@ typedef struct sie_trace_entry {
     double beta;
     double penalty;
     /**
-     * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
-     * 0), over the source points this iteration matched, with this update's weights.
+     * Mean inlier probability over this iteration's correspondences.
      */
     double inlier_fraction;
     /**
@@ -357,21 +374,15 @@ typedef struct sie_trace_entry {
      * True while beta is being annealed, false in the final round.
      */
     bool annealing;
-    /**
-     * T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
-     * viewer can move the source cloud with it every iteration.
-     */
-    double transform[16];
 } sie_trace_entry;
 
 /**
  * Progress callback: called after every iteration of a registration with that iteration's
- * trace entry (valid only during the call; `entry->transform` is the transform the update
- * reached, for a viewer that animates the registration), synchronously on the registering
- * thread. Return 0
+ * trace entry (valid only during the call), synchronously on the registering thread. Return 0
  * to continue; any other value cancels the registration, which then returns
  * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
- * on the same context from inside it return `SIE_STATUS_BUSY`.
+ * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
+ * (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
  */
 typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
 
@@ -404,6 +415,12 @@ typedef struct sie_summary {
      * sqrt(sum P*|r|^2 / sum P), input units (plane distance for point-to-plane).
      */
     double rmse;
+    /**
+     * Largest change made to an entry of the initial guess's rotation block to make it an
+     * exact rotation (guesses up to 1e-3 from orthonormal are accepted); 0 without a guess.
+     * Above 1e-6 the guess was visibly rounded (e.g. printed with 5 digits).
+     */
+    double init_correction;
     /**
      * Number of source points (length of the per-point result arrays).
      */
@@ -537,9 +554,15 @@ sie_status sie_context_cancel(const struct sie_context *ctx);
 
 /**
  * The detail message of the last call on this context that returned a status: "" after a
- * success, otherwise what went wrong (names the argument, value or index). Owned by the
- * context; valid until the next call on it. A NULL context gives a static message. Never
- * NULL.
+ * success, otherwise what went wrong (names the argument, value or index). A call that
+ * returned BUSY leaves it unchanged. While another call is using the context (from inside its
+ * callbacks, say) it is a static text saying so; a NULL context gives a static message.
+ * Never NULL.
+ *
+ * The text is the calling thread's own copy, valid until this thread asks for this context's
+ * message again, frees the context, or exits (each thread keeps the copies of its 64 most
+ * recently asked contexts). So a message being read can never be replaced by a call on
+ * another thread.
  *
  * # Safety
  * `ctx` is NULL or a live context.
@@ -687,6 +710,18 @@ sie_status sie_context_set_trace(struct sie_context *ctx, bool enabled);
 sie_status sie_context_set_skip_non_finite(struct sie_context *ctx, bool enabled);
 
 /**
+ * Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
+ * `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
+ * mark invalid pixels so; they are not measurements, and point-to-point matches them to each
+ * other (at residual 0 at the identity). Dropped source points report inlier probability 0
+ * and target index -1. Default: false (0 0 0 can be a real point).
+ *
+ * # Safety
+ * `ctx` is NULL or a live context.
+ */
+sie_status sie_context_set_skip_origin(struct sie_context *ctx, bool enabled);
+
+/**
  * Installs (or with NULL `progress_fn`, removes) the per-iteration progress callback; see
  * `sie_progress_fn`. `user_data` is passed back unchanged and never freed by the library.
  *
@@ -710,16 +745,19 @@ sie_status sie_context_set_progress_callback(struct sie_context *ctx,
  * `sie_context_register_with_normals` to pass them).
  *
  * `init_T_target_source`: initial guess, 16 doubles ROW-major (T[4*row + col]; transpose
- * Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 and rotation
- * block orthonormal with det +1, both to 1e-6 (rounding from a matrix inverse is fine; the
- * guess is made exactly rigid); NULL = identity. `out_T_target_source` (16 doubles,
+ * Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 to 1e-6 and
+ * rotation block orthonormal to 1e-3 (max |R^T R - I|) with det +1. Rounding is fine: a matrix
+ * inverse's, or a published ground truth printed with 5 digits; the guess is made exactly
+ * rigid and `sie_summary.init_correction` says by how much. NULL = identity. `out_T_target_source` (16 doubles,
  * row-major) is written only on success; it may be the same array as the initial guess.
  *
  * On success the result is stored in the context for the `sie_context_get_*` functions; on
  * any error the previous result is discarded. Non-convergence is not an error (see
  * `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
- * transform), TOO_FEW_POINTS (a count is 0 or too small), NON_FINITE_INPUT (names the array
- * and point index), CALLBACK_FAILED, BUSY.
+ * transform, a count beyond the address space), TOO_FEW_POINTS (a count is 0 or too small),
+ * NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
+ * (the copies of the clouds or the registration's working set, about 450 bytes per source
+ * and 160 per target point, cannot be allocated; checked before the registration starts).
  *
  * # Safety
  * `ctx` is NULL or a live context; each non-NULL array is readable for its count of points at
@@ -907,10 +945,10 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
  * must hold that many (`models_capacity`), else BUFFER_TOO_SMALL; `out_model_count` (nullable)
  * receives the number of histograms.
  *
- * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
- * fit), INVALID_ARGUMENT (cols is 0, bad scale or beta, or a scaled residual above 1e140 in
- * magnitude, whose square would overflow in the fit), NON_FINITE_INPUT (names the index),
- * BUFFER_TOO_SMALL, BUSY.
+ * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
+ * bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
+ * overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY,
+ * OUT_OF_MEMORY.
  *
  * # Safety
  * `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

@@ -25,6 +25,9 @@ pub struct CloudFile {
     pub normals: Option<Vec<Point>>,
     /// Points dropped for a non-finite coordinate (only with [`NonFinite::Skip`]).
     pub skipped_non_finite: usize,
+    /// What the reader noticed but could read past, one line each: a PCD file holding more
+    /// points than its header declares (read as declared, as PCL does, and said here).
+    pub warnings: Vec<String>,
 }
 
 /// What to do with points that have a NaN or infinite coordinate.
@@ -92,7 +95,9 @@ pub fn parse_cloud(bytes: &[u8], format: CloudFormat, non_finite: NonFinite) -> 
 }
 
 /// Reads a rigid transform: 16 numbers (4×4, row-major) or 12 (the top 3×4 rows), separated
-/// by whitespace and/or commas, `#` comments allowed. A 4×4 must end in the row 0 0 0 1.
+/// by whitespace and/or commas, `#` comments allowed. A 4×4 must end in the row 0 0 0 1. The
+/// rotation block is returned as written: [`crate::geometry::make_rigid`] checks it (published
+/// matrices are rounded) and makes it exact.
 pub fn read_transform(path: &Path) -> Result<Matrix4<f64>, String> {
     let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
     let text = fs::read_to_string(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
@@ -221,6 +226,7 @@ type ParseFn = fn(&[u8]) -> Result<RawCloud, String>;
 struct RawCloud {
     points: Vec<Point>,
     normals: Option<Vec<Point>>,
+    warnings: Vec<String>,
 }
 
 impl RawCloud {
@@ -228,6 +234,7 @@ impl RawCloud {
         let RawCloud {
             mut points,
             mut normals,
+            warnings,
         } = self;
         if points.is_empty() {
             return Err("the cloud has no points".into());
@@ -244,26 +251,26 @@ impl RawCloud {
                 points,
                 normals,
                 skipped_non_finite: 0,
+                warnings,
             });
         };
         if non_finite == NonFinite::Reject {
             let p = points[first_bad];
             return Err(format!(
-                "point {first_bad} has a non-finite coordinate ({}, {}, {}); \
+                "point {} of {total} has a non-finite coordinate ({}, {}, {}); \
                  invalid points can be skipped instead (NonFinite::Skip)",
-                p[0], p[1], p[2]
+                first_bad + 1,
+                p[0],
+                p[1],
+                p[2]
             ));
         }
-        let keep: Vec<bool> = points.iter().map(is_finite).collect();
-        let kept = |values: Vec<Point>| -> Vec<Point> {
-            values
-                .into_iter()
-                .zip(&keep)
-                .filter_map(|(v, &k)| k.then_some(v))
-                .collect()
-        };
-        normals = normals.map(kept);
-        points = kept(points);
+        // In place: no second copy of a cloud that may fill memory.
+        if let Some(normals) = normals.as_mut() {
+            let mut finite = points.iter().map(is_finite);
+            normals.retain(|_| finite.next().unwrap_or(false));
+        }
+        points.retain(is_finite);
         if points.is_empty() {
             return Err(format!("all {total} points have a non-finite coordinate"));
         }
@@ -271,8 +278,19 @@ impl RawCloud {
             skipped_non_finite: total - points.len(),
             points,
             normals,
+            warnings,
         })
     }
+}
+
+/// Bytes per point of the cloud a reader builds: position and normal, and as much again for
+/// the file crate's own per-point records while it reads.
+const READ_BYTES_PER_POINT: u64 = 4 * size_of::<Point>() as u64;
+
+/// Asks for the memory a file's declared counts need before any of it is used.
+fn ensure_memory(bytes: u64, what: &str) -> Result<(), String> {
+    let bytes = usize::try_from(bytes).unwrap_or(usize::MAX);
+    crate::memory::ensure_available(bytes, what).map_err(|e| e.to_string())
 }
 
 /// Names under which a cloud's normal components appear.
@@ -289,7 +307,18 @@ const PCD_MAX_RECORD_BYTES: u64 = 1 << 20;
 const LZF_MAX_EXPANSION: u64 = 132;
 
 fn parse_pcd(bytes: &[u8]) -> Result<RawCloud, String> {
-    check_pcd_layout(bytes)?;
+    let layout = check_pcd_layout(bytes)?;
+    if let Some(layout) = &layout {
+        // pcd-rs holds the compressed block, the decompressed one and its row-major copy.
+        let blocks = layout
+            .compressed
+            .map_or(0, |(compressed, uncompressed)| compressed + 2 * uncompressed);
+        let need = layout
+            .points
+            .saturating_mul(READ_BYTES_PER_POINT)
+            .saturating_add(blocks);
+        ensure_memory(need, &format!("reading {} points", layout.points))?;
+    }
     let reader = DynReader::from_bytes(bytes).map_err(|e| format!("PCD header: {e}"))?;
     let meta = reader.meta();
     // pcd-rs drops `_` padding fields from records.
@@ -308,17 +337,32 @@ fn parse_pcd(bytes: &[u8]) -> Result<RawCloud, String> {
     let normal_fields = NORMAL_FIELD_NAMES.into_iter().find_map(find);
     let declared = usize::try_from(meta.num_points).unwrap_or(usize::MAX);
     let capacity = declared.min(bytes.len() / 3);
-    let mut points = Vec::with_capacity(capacity);
-    let mut normals = normal_fields.map(|_| Vec::with_capacity(capacity));
+    let mut points = try_points(capacity)?;
+    let mut normals = match normal_fields {
+        Some(_) => Some(try_points(capacity)?),
+        None => None,
+    };
     for (i, record) in reader.enumerate() {
-        let record = record.map_err(|e| format!("PCD point {i} of {declared}: {e}"))?;
+        let record = record.map_err(|e| format!("PCD point {} of {declared}: {e}", i + 1))?;
         let field = |at: [usize; 3]| at.map(|f| pcd_value(&record, f));
         points.push(field(position_fields));
         if let (Some(normals), Some(at)) = (normals.as_mut(), normal_fields) {
             normals.push(field(at));
         }
     }
-    Ok(RawCloud { points, normals })
+    let warnings = layout
+        .and_then(|layout| layout.undeclared_data(bytes, points.len()))
+        .into_iter()
+        .collect();
+    Ok(RawCloud {
+        points,
+        normals,
+        warnings,
+    })
+}
+
+fn try_points(count: usize) -> Result<Vec<Point>, String> {
+    crate::memory::try_vec(count, &format!("{count} points")).map_err(|e| e.to_string())
 }
 
 /// First value of field `index` as f64 (NaN if absent, so the non-finite policy applies).
@@ -339,25 +383,101 @@ fn pcd_value(record: &DynRecord, index: usize) -> f64 {
     first.unwrap_or(f64::NAN)
 }
 
+/// What the header says about the data, as far as the checks here need it.
+struct PcdLayout {
+    /// Byte offset of the data, right after the DATA line.
+    data_start: usize,
+    kind: PcdData,
+    /// POINTS.
+    points: u64,
+    record_bytes: u64,
+    /// binary_compressed: the block's compressed and uncompressed sizes.
+    compressed: Option<(u64, u64)>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum PcdData {
+    Ascii,
+    Binary,
+    BinaryCompressed,
+}
+
+impl PcdLayout {
+    /// A warning when the file holds data beyond the `read` points its header declares. PCL
+    /// reads the declared points and warns ("input has more points than advertised"); so does
+    /// this reader, so that nothing is dropped without a word.
+    fn undeclared_data(&self, bytes: &[u8], read: usize) -> Option<String> {
+        let data = bytes.get(self.data_start..)?;
+        match self.kind {
+            PcdData::Ascii => {
+                let lines = data
+                    .split(|&b| b == b'\n')
+                    .filter(|line| line.iter().any(|b| !b.is_ascii_whitespace()))
+                    .count();
+                (lines > read).then(|| {
+                    format!(
+                        "the file holds {lines} points but its header declares {} (POINTS); the first \
+                         {read} were read, as PCL does",
+                        self.points
+                    )
+                })
+            }
+            PcdData::Binary => {
+                let declared_bytes = self.points.saturating_mul(self.record_bytes);
+                let extra = (data.len() as u64).saturating_sub(declared_bytes);
+                (extra > 0).then(|| {
+                    let more = extra / self.record_bytes.max(1);
+                    format!(
+                        "the file holds {extra} bytes after the {} points its header declares (POINTS; \
+                         {more} more {}-byte points); the declared points were read, as PCL does",
+                        self.points, self.record_bytes
+                    )
+                })
+            }
+            PcdData::BinaryCompressed => {
+                let (compressed, _) = self.compressed?;
+                let extra = (data.len() as u64).saturating_sub(8 + compressed);
+                (extra > 0).then(|| {
+                    format!(
+                        "the file holds {extra} bytes after its compressed block of the {} points its header \
+                         declares; they were not read",
+                        self.points
+                    )
+                })
+            }
+        }
+    }
+}
+
 /// Rejects the header sizes on which pcd-rs 0.13 would panic or allocate unboundedly: record
-/// sizes that overflow, and binary_compressed blocks whose sizes disagree with the header
-/// (its column transposition indexes out of bounds). Anything else is left to pcd-rs.
-fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
+/// sizes that overflow, binary_compressed blocks whose sizes disagree with the header (its
+/// column transposition indexes out of bounds), and header keys that are not ASCII (pcd-rs
+/// upper-cases keys by Unicode rules, so `ſIZE` would reach it as SIZE unchecked here).
+/// Returns the layout when the header gives it; anything else is left to pcd-rs.
+fn check_pcd_layout(bytes: &[u8]) -> Result<Option<PcdLayout>, String> {
     let mut sizes: Option<Vec<u64>> = None;
     let mut counts: Option<Vec<u64>> = None;
     let mut declared_points: Option<u64> = None;
     let mut rest = bytes;
+    let mut line_number = 0;
     let data_kind = loop {
         let Some(line_end) = rest.iter().position(|&b| b == b'\n') else {
-            return Ok(());
+            return Ok(None);
         };
         let line = String::from_utf8_lossy(&rest[..line_end]);
         rest = &rest[line_end + 1..];
+        line_number += 1;
         let content = line.split('#').next().unwrap_or("");
         let tokens: Vec<&str> = content.split_ascii_whitespace().collect();
         let Some((key, values)) = tokens.split_first() else {
             continue;
         };
+        if !key.is_ascii() {
+            return Err(format!(
+                "PCD header line {line_number}: the key {key:?} is not ASCII (PCD header keys are \
+                 VERSION, FIELDS, SIZE, TYPE, COUNT, WIDTH, HEIGHT, VIEWPOINT, POINTS, DATA)"
+            ));
+        }
         let numbers = || {
             values
                 .iter()
@@ -373,12 +493,13 @@ fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
             _ => {}
         }
     };
+    let data_start = bytes.len() - rest.len();
     let (Some(sizes), Some(points)) = (sizes, declared_points) else {
-        return Ok(());
+        return Ok(None);
     };
     let counts = counts.unwrap_or_else(|| vec![1; sizes.len()]);
     if counts.len() != sizes.len() {
-        return Ok(()); // pcd-rs reports the mismatch
+        return Ok(None); // pcd-rs reports the mismatch
     }
     let record_bytes = sizes
         .iter()
@@ -388,8 +509,21 @@ fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
         })
         .filter(|&b| b <= PCD_MAX_RECORD_BYTES)
         .ok_or("PCD header: SIZE × COUNT gives an implausibly large point record")?;
-    if data_kind != "binary_compressed" || rest.len() < 8 {
-        return Ok(());
+    let kind = match data_kind.as_str() {
+        "ascii" => PcdData::Ascii,
+        "binary" => PcdData::Binary,
+        "binary_compressed" => PcdData::BinaryCompressed,
+        _ => return Ok(None), // pcd-rs reports it
+    };
+    let mut layout = PcdLayout {
+        data_start,
+        kind,
+        points,
+        record_bytes,
+        compressed: None,
+    };
+    if kind != PcdData::BinaryCompressed || rest.len() < 8 {
+        return Ok(Some(layout));
     }
     let compressed = u32::from_le_bytes([rest[0], rest[1], rest[2], rest[3]]) as u64;
     let uncompressed = u32::from_le_bytes([rest[4], rest[5], rest[6], rest[7]]) as u64;
@@ -399,8 +533,9 @@ fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
             "PCD binary_compressed data truncated: {compressed} compressed bytes declared, {present} present"
         ));
     }
+    layout.compressed = Some((compressed, uncompressed));
     if compressed == 0 && uncompressed == 0 {
-        return Ok(());
+        return Ok(Some(layout));
     }
     let expected = points.checked_mul(record_bytes);
     if expected != Some(uncompressed) {
@@ -415,7 +550,7 @@ fn check_pcd_layout(bytes: &[u8]) -> Result<(), String> {
             "PCD binary_compressed block is corrupt: {compressed} bytes cannot expand to {uncompressed}"
         ));
     }
-    Ok(())
+    Ok(Some(layout))
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -475,8 +610,10 @@ fn ply_scalar_bytes(scalar: &ScalarType) -> usize {
     }
 }
 
-/// Reads the `vertex` element (elements before it are read and discarded; those after it,
-/// such as faces or the Stanford scans' `range_grid`, are not read at all).
+/// Reads the `vertex` element; the other elements (a camera before it, faces or the Stanford
+/// scans' `range_grid` after it) are read and discarded, so that data beyond everything the
+/// header declares is noticed: it is an error, as nothing in a PLY file says what it would be
+/// (a vertex count too small in the header, usually).
 fn parse_ply(bytes: &[u8]) -> Result<RawCloud, String> {
     check_ply_header_numbers(bytes)?;
     let mut reader: &[u8] = bytes;
@@ -501,18 +638,70 @@ fn parse_ply(bytes: &[u8]) -> Result<RawCloud, String> {
     let with_normals = NORMAL_FIELD_NAMES
         .iter()
         .any(|names| names.iter().all(|n| has(n)));
+    // ply-rs holds one record per entry of an element while it reads it.
+    let largest = header.elements.values().map(|e| e.count).max().unwrap_or(0);
+    let need = (vertex.count as u64)
+        .saturating_add(largest as u64)
+        .saturating_mul(READ_BYTES_PER_POINT);
+    ensure_memory(need, &format!("reading {} vertices", vertex.count))?;
+    let mut cloud = None;
     for (name, element) in &header.elements {
         check_ply_element_fits(element, &header.encoding, reader.len())?;
         let read = parser
             .read_payload_for_element(&mut reader, element, &header)
             .map_err(|e| format!("PLY element {name:?}: {e}"))?;
         if name == "vertex" {
-            let points = read.iter().map(|v| v.position).collect();
-            let normals = with_normals.then(|| read.iter().map(|v| v.normal).collect());
-            return Ok(RawCloud { points, normals });
+            let mut points = try_points(read.len())?;
+            points.extend(read.iter().map(|v| v.position));
+            let normals = match with_normals {
+                true => {
+                    let mut normals = try_points(read.len())?;
+                    normals.extend(read.iter().map(|v| v.normal));
+                    Some(normals)
+                }
+                false => None,
+            };
+            cloud = Some(RawCloud {
+                points,
+                normals,
+                warnings: Vec::new(),
+            });
         }
     }
-    Err("PLY has no vertex element".into())
+    check_ply_end(reader, &header)?;
+    cloud.ok_or_else(|| "PLY has no vertex element".into())
+}
+
+/// Data after the last declared element: an error naming how much.
+fn check_ply_end(rest: &[u8], header: &ply_rs::ply::Header) -> Result<(), String> {
+    let last = header
+        .elements
+        .values()
+        .next_back()
+        .map_or_else(String::new, |e| format!("{} {:?} entries", e.count, e.name));
+    match header.encoding {
+        Encoding::Ascii => {
+            let lines = rest
+                .split(|&b| b == b'\n')
+                .filter(|line| line.iter().any(|b| !b.is_ascii_whitespace()))
+                .count();
+            if lines > 0 {
+                return Err(format!(
+                    "PLY holds {lines} more lines after the data its header declares (ending with \
+                     {last}); is an element count in the header too small?"
+                ));
+            }
+        }
+        _ if !rest.is_empty() => {
+            return Err(format!(
+                "PLY holds {} more bytes after the data its header declares (ending with {last}); is \
+                 an element count in the header too small?",
+                rest.len()
+            ));
+        }
+        _ => {}
+    }
+    Ok(())
 }
 
 /// ply-rs 0.1 unwraps its header integers into u64 and would panic on longer digit runs.
@@ -584,6 +773,12 @@ fn parse_xyz(bytes: &[u8]) -> Result<RawCloud, String> {
         let line = bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count() + 1;
         format!("line {line}: not UTF-8 text")
     })?;
+    // A point takes at least six bytes ("1 2 3\n") and the Vec may double past the count:
+    // room for a third of the bytes in points is asked for up front.
+    ensure_memory(
+        (bytes.len() as u64 / 3).saturating_mul(size_of::<Point>() as u64),
+        "reading the points",
+    )?;
     let mut points = Vec::new();
     let mut seen_data_line = false;
     for (line_index, line) in text.lines().enumerate() {
@@ -609,6 +804,7 @@ fn parse_xyz(bytes: &[u8]) -> Result<RawCloud, String> {
     Ok(RawCloud {
         points,
         normals: None,
+        warnings: Vec::new(),
     })
 }
 
@@ -627,11 +823,11 @@ fn parse_transform(text: &str) -> Result<Matrix4<f64>, String> {
         n => return Err(format!("expected 16 numbers (4×4) or 12 (3×4), found {n}")),
     }
     let mut matrix = Matrix4::from_row_slice(&values);
-    let last_row = [matrix[(3, 0)], matrix[(3, 1)], matrix[(3, 2)], matrix[(3, 3)]];
     if !crate::geometry::homogeneous_last_row(&matrix) {
-        return Err(format!(
-            "the last row must be 0 0 0 1 for a rigid transform, found {last_row:?}"
-        ));
+        // The same message as everywhere, with the column-major hint when it applies.
+        return Err(crate::geometry::check_rigid(&matrix, "the matrix")
+            .err()
+            .unwrap_or_else(|| "the last row must be 0 0 0 1 for a rigid transform".into()));
     }
     // Printed rounding (e.g. 0.99999999999999978 from an inverted matrix) is removed.
     matrix.set_row(3, &nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));
@@ -800,7 +996,11 @@ mod tests {
         let text = "1 2 3\n4 nan 6\n7 8 9\ninf 0 0\n";
         let path = write_temp("nonfinite.xyz", text.as_bytes());
         let err = read_cloud(&path).err().unwrap();
-        assert!(err.contains("point 1 ") && err.contains("nonfinite.xyz"), "{err}");
+        // Counted from 1, like the lines of the file: the second point (on line 2).
+        assert!(
+            err.contains("point 2 of 4 ") && err.contains("nonfinite.xyz"),
+            "{err}"
+        );
         let cloud = read_cloud_with(&path, NonFinite::Skip).unwrap();
         assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [7.0, 8.0, 9.0]]);
         assert_eq!(cloud.skipped_non_finite, 2);
@@ -837,7 +1037,7 @@ mod tests {
         let cases: [(&str, &[u8], &str); 6] = [
             ("empty.xyz", b"# nothing\n", "no points"),
             ("noxyz.pcd", b"VERSION 0.7\nFIELDS a b\nSIZE 4 4\nTYPE F F\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2\n", "no x, y, z"),
-            ("fields.pcd", b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nHEIGHT 1\nPOINTS 2\nDATA ascii\n1 2 3\n1 2\n", "point 1"),
+            ("fields.pcd", b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nHEIGHT 1\nPOINTS 2\nDATA ascii\n1 2 3\n1 2\n", "point 2 of 2"),
             ("noxyz.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float u\nend_header\n1\n", "no scalar x, y, z"),
             ("garbage.ply", b"\x00\x01garbage\n", "PLY header"),
             ("truncated.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 100\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0", "truncated"),
@@ -869,6 +1069,135 @@ mod tests {
         let text = String::from_utf8_lossy(&good[..header_end]).replace("POINTS 3", "POINTS 3000000000");
         too_many_points.splice(..header_end, text.into_bytes());
         assert!(parse_pcd(&too_many_points).is_err());
+    }
+
+    fn pcd_ascii(declared: usize, lines: usize) -> Vec<u8> {
+        let mut text = format!(
+            "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {declared}\nHEIGHT 1\n\
+             POINTS {declared}\nDATA ascii\n"
+        );
+        for i in 0..lines {
+            text.push_str(&format!("{i} 0.5 -1\n"));
+        }
+        text.into_bytes()
+    }
+
+    /// 1 318 points under a header of 1 000 were read as 1 000 without a word. PCL reads the
+    /// declared points and warns; so does this reader now. Fewer points than declared are an
+    /// error (PCL too).
+    #[test]
+    fn pcd_holding_more_points_than_declared_warns_and_fewer_fails() {
+        let read = |bytes: &[u8]| parse_pcd(bytes).and_then(|raw| raw.finish(NonFinite::Reject));
+        let cloud = read(&pcd_ascii(1000, 1318)).unwrap();
+        assert_eq!(cloud.points.len(), 1000);
+        assert_eq!(cloud.warnings.len(), 1, "{:?}", cloud.warnings);
+        assert!(
+            cloud.warnings[0].contains("1318 points") && cloud.warnings[0].contains("declares 1000"),
+            "{:?}",
+            cloud.warnings
+        );
+        // Blank lines at the end are not points.
+        let mut padded = pcd_ascii(3, 3);
+        padded.extend(b"\n  \n\r\n");
+        assert_eq!(read(&padded).unwrap().warnings, Vec::<String>::new());
+        assert_eq!(read(&pcd_ascii(3, 3)).unwrap().warnings, Vec::<String>::new());
+
+        let mut binary = pcd_binary(&SAMPLE);
+        assert_eq!(read(&binary).unwrap().warnings, Vec::<String>::new());
+        // Two more 19-byte records.
+        let extra = binary[binary.len() - 2 * 19..].to_vec();
+        binary.extend(extra);
+        let cloud = read(&binary).unwrap();
+        assert_eq!(cloud.points, SAMPLE.to_vec());
+        assert!(
+            cloud.warnings.len() == 1 && cloud.warnings[0].contains("2 more 19-byte points"),
+            "{:?}",
+            cloud.warnings
+        );
+
+        let mut compressed = pcd_compressed(&SAMPLE);
+        compressed.extend([1, 2, 3, 4]);
+        let cloud = read(&compressed).unwrap();
+        assert!(
+            cloud.warnings.len() == 1 && cloud.warnings[0].contains("4 bytes after"),
+            "{:?}",
+            cloud.warnings
+        );
+
+        let err = read(&pcd_ascii(1000, 700)).unwrap_err();
+        assert!(err.contains("point 701 of 1000"), "{err}");
+        let mut short = pcd_binary(&SAMPLE);
+        short.truncate(short.len() - 19);
+        assert!(read(&short).is_err());
+    }
+
+    /// A PLY file with 313 395 vertices under `element vertex 300000` was read as 300 000.
+    /// Nothing in a PLY file says what undeclared data would be, so it is an error; fewer
+    /// vertices than declared too.
+    #[test]
+    fn ply_holding_more_or_fewer_vertices_than_declared_is_an_error() {
+        let ascii = |declared: usize, lines: usize| {
+            let mut text = format!(
+                "ply\nformat ascii 1.0\nelement vertex {declared}\nproperty float x\nproperty float y\n\
+                 property float z\nend_header\n"
+            );
+            for i in 0..lines {
+                text.push_str(&format!("{i} 1 2\n"));
+            }
+            text.into_bytes()
+        };
+        assert_eq!(parse_ply(&ascii(300, 300)).unwrap().points.len(), 300);
+        let err = parse_ply(&ascii(300, 313)).err().unwrap();
+        assert!(
+            err.contains("13 more lines") && err.contains("300 \"vertex\""),
+            "{err}"
+        );
+        assert!(parse_ply(&ascii(300, 290)).is_err());
+        // Trailing blank lines are fine.
+        let mut padded = ascii(3, 3);
+        padded.extend(b"\n\n");
+        assert!(parse_ply(&padded).is_ok());
+
+        // Binary with a face element after the vertices: bytes after the face.
+        let mut binary = ply_binary(&SAMPLE);
+        assert!(parse_ply(&binary).is_ok());
+        binary.extend([0u8; 17]);
+        let err = parse_ply(&binary).err().unwrap();
+        assert!(
+            err.contains("17 more bytes") && err.contains("1 \"face\""),
+            "{err}"
+        );
+        let mut short = ply_binary(&SAMPLE);
+        short.truncate(short.len() - 5);
+        assert!(parse_ply(&short).is_err());
+        // The ascii sample ends with its range_grid element: read to the end, nothing left.
+        assert!(parse_ply(PLY_ASCII.as_bytes()).is_ok());
+    }
+
+    /// pcd-rs upper-cases header keys by Unicode rules: `ſIZE` is SIZE and `POıNTS` is POINTS
+    /// to it, so they reached it past the size checks here (which upper-case ASCII only) and
+    /// it panicked. Non-ASCII keys are an error.
+    #[test]
+    fn non_ascii_pcd_header_keys_are_rejected() {
+        // Each extra line contradicts the compressed block, which pcd-rs then indexes past.
+        for (after, extra) in [
+            ("POINTS 3\n", "POıNTS 3000000000\n"),
+            ("SIZE 4 4 4\n", "ſIZE 8 8 8\n"),
+        ] {
+            let good = pcd_compressed(&SAMPLE);
+            let at = good
+                .windows(after.len())
+                .position(|w| w == after.as_bytes())
+                .unwrap()
+                + after.len();
+            let mut bytes = good.clone();
+            bytes.splice(at..at, extra.bytes());
+            let key = extra.split(' ').next().unwrap();
+            let err = parse_pcd(&bytes)
+                .err()
+                .unwrap_or_else(|| panic!("{key} was accepted"));
+            assert!(err.contains("not ASCII") && err.contains(key), "{key}: {err}");
+        }
     }
 
     /// Every truncation and many random corruptions of valid files give Ok or Err, not a panic.

@@ -25,6 +25,7 @@ pub mod ffi;
 pub mod geometry;
 #[cfg(feature = "io")]
 pub mod io;
+pub mod memory;
 pub mod nn;
 pub mod noise;
 pub mod normals;

@@ -69,7 +69,7 @@ pub fn cloud_sigmas(
             CloudRole::Target => "target",
         };
         return Err(format!(
-            "noise scale for {name} point {i} is {v}; scales must be finite and > 0"
+            "noise scale sigma[{i}] of the {name} cloud is {v}; scales must be finite and > 0"
         ));
     }
     Ok(out)
@@ -104,6 +104,6 @@ mod tests {
             }
         }
         let err = cloud_sigmas(&mut Bad, CloudRole::Target, &[[0.0; 3]; 4]).unwrap_err();
-        assert!(err.contains("target point 2"), "{err}");
+        assert!(err.contains("sigma[2] of the target cloud"), "{err}");
     }
 }

@@ -30,7 +30,9 @@ impl Workers {
         Ok(Workers { threads })
     }
 
-    /// Calls `f(first_index, chunk)` on consecutive `CHUNK`-sized pieces of `data`.
+    /// Calls `f(first_index, chunk)` on consecutive `CHUNK`-sized pieces of `data`, on up to
+    /// `threads` threads; when the system cannot start that many, on those it could (at least
+    /// the caller's), with the same result.
     pub fn for_each_chunk_mut<T: Send>(&self, data: &mut [T], f: impl Fn(usize, &mut [T]) + Sync + Send) {
         let chunks = data.len().div_ceil(CHUNK);
         let threads = self.threads.min(chunks);
@@ -50,7 +52,11 @@ impl Workers {
             }
         };
         std::thread::scope(|scope| {
-            let helpers: Vec<_> = (1..threads).map(|_| scope.spawn(work)).collect();
+            // A thread the system refuses (no memory for its stack, a process or thread limit)
+            // is not needed: the threads that did start, and this one, take its chunks.
+            let helpers: Vec<_> = (1..threads)
+                .map_while(|_| std::thread::Builder::new().spawn_scoped(scope, work).ok())
+                .collect();
             work();
             // Join explicitly: `scope` alone returns once the closures are done, while the OS
             // threads may still be tearing down (valgrind then sees their TLS at a host's exit).

@@ -173,7 +173,7 @@ fn failing_or_invalid_callbacks_are_reported() {
     )
     .unwrap_err();
     assert!(
-        matches!(&e, Error::Callback(m) if m.contains("source point 0")),
+        matches!(&e, Error::Callback(m) if m.contains("sigma[0] of the source cloud")),
         "{e}"
     );
 }

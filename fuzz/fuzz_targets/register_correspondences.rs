@@ -1,16 +1,31 @@
-//! `sie_context_register_correspondences` on arbitrary float pairs and settings.
+//! `sie_context_register_correspondences_d` on arbitrary pairs and settings, grown into the
+//! shapes that broke it: magnitudes from 2^-1024 to 2^1016 (squares that overflow or
+//! underflow), exact duplicates of a pair, and non-finite values.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use sie::ffi::*;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&settings, rest)) = data.split_first() else { return };
-    let floats: Vec<f32> = rest
+    let Some((&[settings, magnitude, copies], rest)) = data.split_first_chunk::<3>() else { return };
+    // Coordinates scaled by 2^(8·magnitude as i8): the same geometry at any magnitude.
+    let scale = 2f64.powi(8 * i32::from(magnitude as i8));
+    let mut values: Vec<f64> = rest
         .chunks_exact(4)
-        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .map(|c| f64::from(f32::from_le_bytes(c.try_into().unwrap())) * scale)
         .collect();
-    let n = floats.len() / 6;
-    let (source, target) = floats[..6 * n].split_at(3 * n);
+    values.truncate(values.len() / 6 * 6);
+    // Exact duplicates of the first pair, as depth frames hold (up to 255 more).
+    if values.len() >= 6 {
+        let first: Vec<f64> = values[..6].to_vec();
+        for _ in 0..copies {
+            values.extend_from_slice(&first);
+        }
+    }
+    let n = values.len() / 6;
+    let (source, target): (Vec<f64>, Vec<f64>) = (
+        values.chunks_exact(6).flat_map(|p| p[..3].to_vec()).collect(),
+        values.chunks_exact(6).flat_map(|p| p[3..].to_vec()).collect(),
+    );
     let mut out = [-7.0f64; 16];
     // SAFETY: the arrays hold n packed points each; `out` holds 16 doubles.
     unsafe {
@@ -18,8 +33,9 @@ fuzz_target!(|data: &[u8]| {
         let _ = sie_context_set_cost_function(ctx, (settings & 7) as u32, 0.05);
         let _ = sie_context_set_skip_non_finite(ctx, settings & 8 != 0);
         let _ = sie_context_set_histogram_mode(ctx, ((settings >> 4) & 1) as u32);
-        let _ = sie_context_set_max_iterations(ctx, 1 + (settings >> 5) as u32 * 8);
-        let status = sie_context_register_correspondences(
+        let _ = sie_context_set_skip_origin(ctx, settings & 32 != 0);
+        let _ = sie_context_set_max_iterations(ctx, 1 + (settings >> 6) as u32 * 8);
+        let status = sie_context_register_correspondences_d(
             ctx,
             source.as_ptr(),
             0,

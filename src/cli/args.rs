@@ -150,6 +150,10 @@ pub struct RegisterArgs {
     /// failing.
     #[arg(long, help_heading = "Data")]
     pub skip_invalid: bool,
+    /// Drop points at exactly 0 0 0, as depth sensors mark invalid pixels (they are not
+    /// measurements; point-to-point would match them to each other).
+    #[arg(long, help_heading = "Data")]
+    pub skip_origin: bool,
     /// Worker threads (0 = all cores).
     #[arg(long, value_name = "N", default_value_t = defaults().threads, help_heading = "Data")]
     pub threads: usize,
@@ -335,6 +339,7 @@ impl RegisterArgs {
             threads: self.threads,
             seed: self.seed,
             record_trace: self.trace,
+            skip_origin: self.skip_origin,
             ..RegistrationConfig::default()
         };
         config.sie.shape = if self.noise_shape == 0.0 {

@@ -8,10 +8,11 @@ use std::path::Path;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
-use sie::geometry::{rotation_part, transform_point, vector};
+use sie::geometry::{NOTABLE_CORRECTION, Rigid, make_rigid, rotation_part, transform_point, vector};
 use sie::io::{
     CloudFile, NonFinite, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz,
 };
+use sie::memory;
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, register_clouds,
@@ -55,14 +56,28 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let config = args.config()?;
     check_outputs(args, &config)?;
     let init = match (&args.init, &args.init_pose) {
-        (Some(path), _) => Some(read_transform(path).map_err(CliError::new)?),
-        (None, Some(values)) => Some(pose_matrix(values)?),
+        (Some(path), _) => Some(rigid_file(path, "--init")?),
+        (None, Some(values)) => Some(Rigid {
+            transform: pose_matrix(values)?,
+            correction: 0.0,
+        }),
         (None, None) => None,
     };
     let truth = match &args.ground_truth {
-        Some(path) => Some(read_transform(path).map_err(CliError::new)?),
+        Some(path) => Some(rigid_file(path, "--ground-truth")?),
         None => None,
     };
+    if !args.quiet {
+        for (rigid, option) in [(&init, "--init"), (&truth, "--ground-truth")] {
+            if let Some(rigid) = rigid.as_ref().filter(|r| r.correction > NOTABLE_CORRECTION) {
+                eprintln!(
+                    "sie: note: the {option} rotation was rounded (an entry changed by {:.1e} to make it \
+                     exactly rigid)",
+                    rigid.correction
+                );
+            }
+        }
+    }
 
     // The live table would interleave with nothing useful in JSON mode; there the trace goes
     // into the report.
@@ -77,6 +92,12 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let source = read_cloud_with(&args.source, policy).map_err(input_error)?;
     progress.note(&format!("reading {}", args.target.display()));
     let target = read_cloud_with(&args.target, policy).map_err(input_error)?;
+    // Data the files hold beyond what they declare is said even with -q: it was not read.
+    for (path, cloud) in [(&args.source, &source), (&args.target, &target)] {
+        for warning in &cloud.warnings {
+            eprintln!("sie: warning: {}: {warning}", path.display());
+        }
+    }
     let target_normals = if args.file_normals {
         let normals = target.normals.as_deref().ok_or_else(|| {
             CliError::new(format!(
@@ -90,6 +111,10 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     };
     let read_seconds = read_start.elapsed().as_secs_f64();
 
+    // Asked for before starting, so that a memory limit is an error here, not an abort later.
+    let working_set = memory::cloud_registration_bytes(source.points.len(), target.points.len());
+    memory::ensure_available(working_set, "the registration of these clouds")
+        .map_err(|e| CliError::new(format!("cannot register: {e}")))?;
     install_interrupt_handler();
     progress.note(match (config.metric, target_normals) {
         (Metric::PointToPlane, None) => "estimating target normals",
@@ -107,7 +132,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             &source.points,
             &target.points,
             target_normals,
-            init.as_ref(),
+            init.as_ref().map(|rigid| &rigid.transform),
             &config,
             hooks,
         )
@@ -117,14 +142,14 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let seconds = started.elapsed().as_secs_f64();
 
     let ground_truth = truth.map(|t| {
-        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t);
+        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t.transform);
         GroundTruthError {
             rotation_error_deg,
             translation_error,
         }
     });
-    let source_report = cloud_report(&args.source, &source);
-    let target_report = cloud_report(&args.target, &target);
+    let source_report = cloud_report(&args.source, &source, config.skip_origin);
+    let target_report = cloud_report(&args.target, &target, config.skip_origin);
     let transform_text = format_transform(&result.transform, "");
 
     // Files first, so a failed write is the last thing the user reads; the result is printed
@@ -179,6 +204,8 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             seconds,
             read_seconds,
             ground_truth,
+            init_correction: init.map(|rigid| rigid.correction),
+            ground_truth_correction: truth.map(|rigid| rigid.correction),
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;
@@ -246,6 +273,14 @@ fn check_outputs(args: &RegisterArgs, config: &RegistrationConfig) -> Result<(),
     Ok(())
 }
 
+/// A transform file made exactly rigid: rotation blocks within 1e-3 of orthonormal are
+/// accepted (published ground truths are rounded to ~5e-5), anything else is an error naming
+/// the file and the option.
+fn rigid_file(path: &Path, option: &str) -> Result<Rigid, CliError> {
+    let matrix = read_transform(path).map_err(|e| CliError::new(format!("{option}: {e}")))?;
+    make_rigid(&matrix, &format!("{} ({option})", path.display())).map_err(CliError::new)
+}
+
 /// A reader error as one line, in this tool's terms: the library's hint names its API, and a
 /// short binary payload surfaces as a bare I/O message.
 fn input_error(message: String) -> CliError {
@@ -259,11 +294,16 @@ fn input_error(message: String) -> CliError {
     )
 }
 
-fn cloud_report(path: &Path, cloud: &CloudFile) -> CloudReport {
+fn cloud_report(path: &Path, cloud: &CloudFile, skip_origin: bool) -> CloudReport {
     CloudReport {
         path: path.display().to_string(),
         points: cloud.points.len(),
         skipped_non_finite: cloud.skipped_non_finite,
+        skipped_origin: match skip_origin {
+            true => cloud.points.iter().filter(|p| **p == [0.0; 3]).count(),
+            false => 0,
+        },
+        warnings: cloud.warnings.clone(),
     }
 }
 

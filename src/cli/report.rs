@@ -63,6 +63,11 @@ pub struct CloudReport {
     pub points: usize,
     /// Points dropped for a non-finite coordinate (`--skip-invalid`).
     pub skipped_non_finite: usize,
+    /// Points at exactly 0 0 0 dropped by the registration (`--skip-origin`).
+    pub skipped_origin: usize,
+    /// What the reader noticed but read past (also printed on stderr, `-q` or not), e.g. a PCD
+    /// file holding more points than its header declares.
+    pub warnings: Vec<String>,
 }
 
 /// Error of the result against `--ground-truth`.
@@ -135,6 +140,10 @@ pub struct JsonReport<'a> {
     pub seconds: f64,
     pub read_seconds: f64,
     pub ground_truth: Option<GroundTruthError>,
+    /// Largest change made to a rotation entry of `--init` / `--ground-truth` to make it
+    /// exactly rigid (null without the option; above 1e-6 the file was visibly rounded).
+    pub init_correction: Option<f64>,
+    pub ground_truth_correction: Option<f64>,
     /// One row per iteration with `--trace`, else empty.
     pub trace: Vec<TraceRow>,
 }
@@ -171,9 +180,11 @@ pub struct SummaryContext<'a> {
 pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String {
     let mut text = String::new();
     let cloud = |c: &CloudReport| {
-        let skipped = match c.skipped_non_finite {
-            0 => String::new(),
-            n => format!(" ({n} non-finite skipped)"),
+        let skipped = match (c.skipped_non_finite, c.skipped_origin) {
+            (0, 0) => String::new(),
+            (n, 0) => format!(" ({n} non-finite skipped)"),
+            (0, o) => format!(" ({o} at 0 0 0 skipped)"),
+            (n, o) => format!(" ({n} non-finite and {o} at 0 0 0 skipped)"),
         };
         format!("{}: {} points{skipped}", c.path, c.points)
     };

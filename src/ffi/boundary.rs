@@ -5,8 +5,10 @@ use std::any::Any;
 use std::ffi::CStr;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
-use super::{sie_context, sie_status};
+use super::{ContextState, sie_context, sie_status};
 use crate::error::Error;
+use crate::memory::MemoryError;
+use std::sync::atomic::AtomicBool;
 
 /// Why a call failed: the status returned to C and the message stored in `last_error`.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,12 +32,15 @@ impl FfiError {
     pub(crate) fn invalid(message: impl Into<String>) -> Self {
         Self::new(sie_status::InvalidArgument, message)
     }
+}
 
-    pub(crate) fn busy() -> Self {
-        Self::new(
-            sie_status::Busy,
-            "the context is busy: a registration on it is still running (call from inside its noise callback?)",
-        )
+impl From<MemoryError> for FfiError {
+    fn from(error: MemoryError) -> Self {
+        let status = match error {
+            MemoryError::TooLarge { .. } => sie_status::InvalidArgument,
+            MemoryError::OutOfMemory { .. } => sie_status::OutOfMemory,
+        };
+        FfiError::new(status, error.to_string())
     }
 }
 
@@ -51,30 +56,43 @@ impl From<Error> for FfiError {
     }
 }
 
-/// Runs `body` on a context: no context -> NULL_ARGUMENT; a panic -> PANIC with its message, and
-/// the stored result dropped (it may be half-updated); an error -> its status and message;
-/// success clears the message.
+/// What a call's body may use of the context it has taken.
+pub(crate) struct Call<'a> {
+    pub(crate) state: &'a mut ContextState,
+    pub(crate) cancel_requested: &'a AtomicBool,
+}
+
+/// Runs `body` on a context it takes for the call: no context -> NULL_ARGUMENT; taken by
+/// another call -> BUSY, nothing touched (not even the error message); a panic -> PANIC with
+/// its message and the stored result dropped (it may be half-updated); an error -> its status
+/// and message; success clears the message. The context is given back when this returns, also
+/// after a panic.
 pub(crate) fn boundary(
     context: Option<&sie_context>,
-    body: impl FnOnce(&sie_context) -> Result<(), FfiError>,
+    body: impl FnOnce(Call<'_>) -> Result<(), FfiError>,
 ) -> sie_status {
     let Some(context) = context else {
         return sie_status::NullArgument;
     };
-    match catch_unwind(AssertUnwindSafe(|| body(context))) {
+    let Some(mut taken) = context.take() else {
+        return sie_status::Busy;
+    };
+    let call = Call {
+        state: &mut taken.state,
+        cancel_requested: &context.cancel_requested,
+    };
+    match catch_unwind(AssertUnwindSafe(|| body(call))) {
         Ok(Ok(())) => {
-            context.set_last_error("");
+            taken.set_last_error("");
             sie_status::Ok
         }
         Ok(Err(error)) => {
-            context.set_last_error(&error.message);
+            taken.set_last_error(&error.message);
             error.status
         }
         Err(payload) => {
-            // Unwinding released the body's borrows, so this succeeds unless the panic came
-            // from a re-entrant call while an outer registration holds the state.
-            context.clear_result();
-            context.set_last_error(&format!("internal panic: {}", panic_message(&*payload)));
+            taken.state.result = None;
+            taken.set_last_error(&format!("internal panic: {}", panic_message(&*payload)));
             sie_status::Panic
         }
     }

@@ -6,6 +6,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, read_array, write_output};
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
+use crate::memory;
 use crate::sie::estimate::estimate_inliers;
 
 fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError> {
@@ -14,7 +15,7 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
         Some(index) => Err(FfiError::new(
             sie_status::NonFiniteInput,
             format!(
-                "{name}[{index}] is {} (row {}, column {})",
+                "{name}[{index}] is {} (row index {}, column index {}, from 0)",
                 values[index],
                 index / cols,
                 index % cols
@@ -38,7 +39,8 @@ fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError>
 ///
 /// Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
 /// fit), INVALID_ARGUMENT (cols is 0, bad scale or beta), NON_FINITE_INPUT (names the index),
-/// BUFFER_TOO_SMALL, BUSY. Residuals of any finite magnitude are accepted: the answer does not
+/// BUFFER_TOO_SMALL, BUSY,
+/// OUT_OF_MEMORY. Residuals of any finite magnitude are accepted: the answer does not
 /// depend on their unit, and a residual beyond 1e100 times the typical one is an outlier.
 ///
 /// # Safety
@@ -60,7 +62,7 @@ pub unsafe extern "C" fn sie_estimate_inliers(
     out_model_count: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out_probabilities, "out_probabilities")?;
         check_optional_output(out_models, "out_models")?;
         check_optional_output(out_model_count, "out_model_count")?;
@@ -99,8 +101,8 @@ pub unsafe extern "C" fn sie_estimate_inliers(
             )));
         }
 
-        let state = context.state()?;
-        let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &state.config.sie)?;
+        memory::ensure_available(memory::estimate_bytes(len), "the inlier estimate")?;
+        let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &call.state.config.sie)?;
         let model_count = estimate.models.len();
         if !out_models.is_null() && models_capacity < model_count {
             return Err(FfiError::new(

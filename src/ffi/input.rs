@@ -7,7 +7,8 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::sie_status;
-use crate::geometry::Point;
+use crate::geometry::{Point, Rigid};
+use crate::memory::try_vec;
 
 /// The scalar types point arrays come in.
 pub(crate) trait Coordinate: Copy {
@@ -90,8 +91,10 @@ pub(crate) unsafe fn read_array<T: Copy>(ptr: *const T, len: usize, name: &str) 
     check_non_null(ptr, name)?;
     check_aligned(ptr, name)?;
     check_extent(len.checked_mul(size_of::<T>()), name)?;
+    let mut copy = try_vec(len, name)?;
     // SAFETY: non-NULL, aligned, within isize::MAX bytes, and readable per the contract.
-    Ok(unsafe { core::slice::from_raw_parts(ptr, len) }.to_vec())
+    copy.extend_from_slice(unsafe { core::slice::from_raw_parts(ptr, len) });
+    Ok(copy)
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`
@@ -128,7 +131,9 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
         .map_or(Some(0), |last| last.checked_mul(stride)?.checked_add(3 * scalar));
     check_extent(extent, name)?;
 
-    let mut points = Vec::with_capacity(count);
+    // The copy holds f64 (24 bytes a point), more than a float array's 12: a count that fits
+    // the caller's memory may still not fit here.
+    let mut points = try_vec(count, &format!("{name} ({count} points)"))?;
     for i in 0..count {
         // SAFETY: inside the extent checked above, aligned because the base is aligned and the
         // stride is a multiple of the scalar size; readable per the contract.
@@ -153,19 +158,20 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
     Ok(points)
 }
 
-/// Reads an optional row-major 4x4 rigid transform; NULL means identity (`None`).
+/// Reads an optional row-major 4x4 rigid transform (`geometry::make_rigid`: rotation block
+/// within 1e-3 of orthonormal, made exact); NULL means identity (`None`).
 ///
 /// # Safety
 /// `ptr` is NULL or valid for 16 reads of f64.
-pub(crate) unsafe fn read_transform(ptr: *const f64, name: &str) -> Result<Option<Matrix4<f64>>, FfiError> {
+pub(crate) unsafe fn read_transform(ptr: *const f64, name: &str) -> Result<Option<Rigid>, FfiError> {
     if ptr.is_null() {
         return Ok(None);
     }
     // SAFETY: forwarded contract.
     let values = unsafe { read_array(ptr, 16, name) }?;
     let matrix = Matrix4::from_row_slice(&values);
-    crate::geometry::check_rigid(&matrix, name).map_err(FfiError::invalid)?;
-    Ok(Some(matrix))
+    let rigid = crate::geometry::make_rigid(&matrix, name).map_err(FfiError::invalid)?;
+    Ok(Some(rigid))
 }
 
 /// Row-major copy of a 4x4 matrix (nalgebra stores column-major).

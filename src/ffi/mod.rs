@@ -22,8 +22,9 @@ mod results;
 mod estimate;
 
 use core::ffi::{c_char, c_void};
-use std::cell::{Ref, RefCell, RefMut};
+use std::cell::UnsafeCell;
 use std::ffi::{CStr, CString};
+use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::registration::{RegistrationConfig, RegistrationResult};
@@ -58,13 +59,19 @@ pub enum sie_status {
     NoResult = 6,
     /// The output capacity is smaller than the result; nothing was written.
     BufferTooSmall = 7,
-    /// The context is in use by a registration further up the stack (a call from inside its
-    /// noise callback); nothing was changed.
+    /// The context is in use by another call: a registration further up the stack (a call
+    /// from inside its noise or progress callback) or, against the one-call-at-a-time
+    /// contract, a call on another thread. Nothing was changed, not even the context's error
+    /// message (`sie_context_last_error` gives a fixed text while the context is in use).
     Busy = 8,
     /// The registration was cancelled (`sie_context_cancel` or a progress callback returning
     /// non-zero). Not a failure: the transform reached so far WAS written to
     /// `out_T_target_source` and the result stored (stop reason CANCELLED).
     Cancelled = 9,
+    /// Not enough memory for this input: a buffer sized by a count, or the working set of the
+    /// registration (asked for before it starts), could not be allocated; nothing was written
+    /// and the process is unharmed. The message says how much was needed.
+    OutOfMemory = 10,
     /// An internal error (a Rust panic) was caught; the stored result was discarded. Please
     /// report it with the message from `sie_context_last_error`.
     Panic = 100,
@@ -159,6 +166,11 @@ pub enum sie_cloud {
 /// registration with `SIE_STATUS_CALLBACK_FAILED` and the value in the message. It must not
 /// unwind or throw, and must not free the context; other calls on the same context from inside
 /// it return `SIE_STATUS_BUSY`. The pointers are valid only during the call.
+///
+/// Never leave it with `longjmp` (or a C++ exception through C frames): that skips the
+/// library's cleanup, so the context stays in use for good (every later call on it returns
+/// BUSY, `sie_context_free` ignores it and it leaks) along with the registration's memory.
+/// Return non-zero instead, and longjmp after the registration has returned.
 pub type sie_noise_fn = Option<
     unsafe extern "C" fn(
         user_data: *mut c_void,
@@ -175,7 +187,8 @@ pub type sie_noise_fn = Option<
 /// thread. Return 0
 /// to continue; any other value cancels the registration, which then returns
 /// `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
-/// on the same context from inside it return `SIE_STATUS_BUSY`.
+/// on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
+/// (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
 pub type sie_progress_fn =
     Option<unsafe extern "C" fn(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32>;
 
@@ -196,6 +209,10 @@ pub struct sie_summary {
     pub inlier_fraction: f64,
     /// sqrt(sum P*|r|^2 / sum P), input units (plane distance for point-to-plane).
     pub rmse: f64,
+    /// Largest change made to an entry of the initial guess's rotation block to make it an
+    /// exact rotation (guesses up to 1e-3 from orthonormal are accepted); 0 without a guess.
+    /// Above 1e-6 the guess was visibly rounded (e.g. printed with 5 digits).
+    pub init_correction: f64,
     /// Number of source points (length of the per-point result arrays).
     pub source_count: u64,
     /// Number of source points matched to a target point.
@@ -275,51 +292,144 @@ pub(crate) struct ContextState {
     pub(crate) progress_callback: Option<ProgressCallback>,
     /// The last successful registration; cleared by a failed one and after a panic.
     pub(crate) result: Option<RegistrationResult>,
+    /// How much its initial guess was corrected to be exactly rigid (`sie_summary`).
+    pub(crate) init_correction: f64,
+}
+
+/// What the call that owns a context may touch.
+#[derive(Default)]
+pub(crate) struct Owned {
+    pub(crate) state: ContextState,
+    /// The message of the last call that ran (`sie_context_last_error`).
+    last_error: CString,
+}
+
+impl Owned {
+    fn set_last_error(&mut self, message: &str) {
+        // An interior NUL would cut the message short in C; show it instead.
+        self.last_error = CString::new(message.replace('\0', "\\0")).unwrap_or_default();
+    }
 }
 
 /// A registration context: configuration, noise callback, last result and last error.
 /// Create with `sie_context_new`, free with `sie_context_free`.
 ///
-/// A context may be used from any thread, but by one thread at a time (this includes the
+/// A context may be used from any thread, but by one call at a time (this includes the
 /// functions taking `const sie_context*`). Distinct contexts are independent; the library has
 /// no global state.
+///
+/// Every call first takes the context (a try-lock, `busy`) and gives it back when it returns; a
+/// call that finds it taken returns BUSY without touching anything else. So misuse (a call
+/// from inside a callback, or from a second thread) is always refused, never a data race, and
+/// the state is only ever reached through the one owning call.
 #[derive(Default)]
 pub struct sie_context {
-    /// In a `RefCell` so that a call made from inside the noise callback (while a registration
-    /// holds the state) gets BUSY instead of creating an aliasing `&mut`.
-    state: RefCell<ContextState>,
-    /// Separate from `state` because every call writes it, including rejected re-entrant ones.
-    last_error: RefCell<CString>,
+    busy: BusyFlag,
+    owned: UnsafeCell<Owned>,
     /// Set by `sie_context_cancel` (any thread, or a signal handler); consumed by the
-    /// registration it stops. Outside `state` so that setting it never touches the RefCells.
+    /// registration it stops. Outside `owned` so that setting it never needs the context.
     pub(crate) cancel_requested: AtomicBool,
 }
 
-impl sie_context {
-    /// The state for reading, or BUSY while a registration on this context is running.
-    pub(crate) fn state(&self) -> Result<Ref<'_, ContextState>, FfiError> {
-        self.state.try_borrow().map_err(|_| FfiError::busy())
-    }
+// SAFETY: `owned` is only reached through a `Taken`, of which at most one exists at a time (the
+// try-lock `busy`, which orders successive owners); the other fields are atomic. The callbacks'
+// raw user-data pointers are the caller's to share.
+unsafe impl Sync for sie_context {}
+// SAFETY: as above; nothing in a context is tied to the thread that created it.
+unsafe impl Send for sie_context {}
 
-    /// The state for writing, or BUSY while a registration on this context is running.
-    pub(crate) fn state_mut(&self) -> Result<RefMut<'_, ContextState>, FfiError> {
-        self.state.try_borrow_mut().map_err(|_| FfiError::busy())
-    }
+/// The context's try-lock. On Unix a pthread mutex (only ever `trylock`ed, so it cannot block
+/// or deadlock, also when a callback calls back in on the same thread): thread checkers such as
+/// helgrind understand it, whereas they report every access ordered by a plain atomic flag as a
+/// race. Elsewhere an atomic flag (acquire on taking, release on giving back).
+#[cfg(unix)]
+struct BusyFlag(UnsafeCell<libc::pthread_mutex_t>);
 
-    fn set_last_error(&self, message: &str) {
-        // An interior NUL would cut the message short in C; show it instead.
-        let text = CString::new(message.replace('\0', "\\0")).unwrap_or_default();
-        if let Ok(mut slot) = self.last_error.try_borrow_mut() {
-            *slot = text;
-        }
-    }
-
-    fn clear_result(&self) {
-        if let Ok(mut state) = self.state.try_borrow_mut() {
-            state.result = None;
-        }
+#[cfg(unix)]
+impl Default for BusyFlag {
+    fn default() -> Self {
+        // Static initialisation: plain data until first locked, so it may move until then
+        // (`sie_context_new` boxes the context before any call can take it).
+        BusyFlag(UnsafeCell::new(libc::PTHREAD_MUTEX_INITIALIZER))
     }
 }
+
+#[cfg(unix)]
+impl BusyFlag {
+    fn try_take(&self) -> bool {
+        // SAFETY: an initialised mutex at a fixed address (the context is boxed).
+        unsafe { libc::pthread_mutex_trylock(self.0.get()) == 0 }
+    }
+
+    fn give_back(&self) {
+        // SAFETY: taken by this call (`try_take` returned true).
+        unsafe { libc::pthread_mutex_unlock(self.0.get()) };
+    }
+}
+
+#[cfg(unix)]
+impl Drop for BusyFlag {
+    fn drop(&mut self) {
+        // SAFETY: not locked: `sie_context_free` gives the context back before dropping it.
+        unsafe { libc::pthread_mutex_destroy(self.0.get()) };
+    }
+}
+
+#[cfg(not(unix))]
+#[derive(Default)]
+struct BusyFlag(AtomicBool);
+
+#[cfg(not(unix))]
+impl BusyFlag {
+    fn try_take(&self) -> bool {
+        self.0
+            .compare_exchange(false, true, Ordering::Acquire, Ordering::Relaxed)
+            .is_ok()
+    }
+
+    fn give_back(&self) {
+        self.0.store(false, Ordering::Release);
+    }
+}
+
+/// Exclusive use of a context by one call; given back on drop (also while unwinding).
+pub(crate) struct Taken<'a> {
+    context: &'a sie_context,
+}
+
+impl sie_context {
+    /// The context for this call, or `None` while another call (further up the stack, or on
+    /// another thread) has it.
+    pub(crate) fn take(&self) -> Option<Taken<'_>> {
+        // Lazily: a `Taken` gives the context back when dropped.
+        self.busy.try_take().then(|| Taken { context: self })
+    }
+}
+
+impl Deref for Taken<'_> {
+    type Target = Owned;
+    fn deref(&self) -> &Owned {
+        // SAFETY: this is the only `Taken` of the context (see `take`).
+        unsafe { &*self.context.owned.get() }
+    }
+}
+
+impl DerefMut for Taken<'_> {
+    fn deref_mut(&mut self) -> &mut Owned {
+        // SAFETY: this is the only `Taken` of the context (see `take`).
+        unsafe { &mut *self.context.owned.get() }
+    }
+}
+
+impl Drop for Taken<'_> {
+    fn drop(&mut self) {
+        self.context.busy.give_back();
+    }
+}
+
+/// `sie_context_last_error` while another call has the context.
+const BUSY_MESSAGE: &CStr =
+    c"the context is busy: another call is using it (a call from inside its callback, or from another thread)";
 
 const VERSION_STRING: &CStr = static_c_str(concat!(env!("CARGO_PKG_VERSION"), "\0").as_bytes());
 
@@ -364,6 +474,7 @@ pub extern "C" fn sie_status_str(status: u32) -> *const c_char {
             7 => c"buffer too small",
             8 => c"context busy",
             9 => c"cancelled",
+            10 => c"out of memory",
             100 => c"internal panic",
             _ => c"unknown status",
         };
@@ -394,11 +505,14 @@ pub unsafe extern "C" fn sie_context_free(ctx: *mut sie_context) {
         let Some(context) = (unsafe { ctx.as_ref() }) else {
             return;
         };
-        // A registration further up the stack still uses it.
-        if context.state.try_borrow_mut().is_err() {
+        // A call further up the stack (or, against the contract, on another thread) still
+        // uses it.
+        if context.take().is_none() {
             return;
         }
-        // SAFETY: allocated by `sie_context_new` via Box::into_raw and not yet freed.
+        message_copies::forget(ctx as usize);
+        // SAFETY: allocated by `sie_context_new` via Box::into_raw and not yet freed; no call
+        // was using it just now, and the contract rules out one starting.
         drop(unsafe { Box::from_raw(ctx) });
     })
 }
@@ -428,9 +542,15 @@ pub unsafe extern "C" fn sie_context_cancel(ctx: *const sie_context) -> sie_stat
 }
 
 /// The detail message of the last call on this context that returned a status: "" after a
-/// success, otherwise what went wrong (names the argument, value or index). Owned by the
-/// context; valid until the next call on it. A NULL context gives a static message. Never
-/// NULL.
+/// success, otherwise what went wrong (names the argument, value or index). A call that
+/// returned BUSY leaves it unchanged. While another call is using the context (from inside its
+/// callbacks, say) it is a static text saying so; a NULL context gives a static message.
+/// Never NULL.
+///
+/// The text is the calling thread's own copy, valid until this thread asks for this context's
+/// message again, frees the context, or exits (each thread keeps the copies of its 64 most
+/// recently asked contexts). So a message being read can never be replaced by a call on
+/// another thread.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context.
@@ -440,12 +560,55 @@ pub unsafe extern "C" fn sie_context_last_error(ctx: *const sie_context) -> *con
         // SAFETY: NULL or live per the contract.
         match unsafe { ctx.as_ref() } {
             None => c"ctx is NULL".as_ptr(),
-            Some(context) => match context.last_error.try_borrow() {
-                Ok(message) => message.as_ptr(),
-                Err(_) => c"".as_ptr(),
+            Some(context) => match context.take() {
+                Some(taken) => message_copies::store(ctx as usize, &taken.last_error)
+                    .unwrap_or(c"(the message is not available while this thread exits)".as_ptr()),
+                None => BUSY_MESSAGE.as_ptr(),
             },
         }
     })
+}
+
+/// Each thread's copies of the messages it asked for (`sie_context_last_error`), keyed by
+/// context address: a per-thread copy cannot be replaced by another thread's call.
+mod message_copies {
+    use core::ffi::c_char;
+    use std::cell::RefCell;
+    use std::ffi::{CStr, CString};
+
+    /// Enough for any reasonable number of contexts used on one thread at a time, and a bound
+    /// for threads that ask for the messages of contexts freed elsewhere.
+    const PER_THREAD: usize = 64;
+
+    thread_local! {
+        static COPIES: RefCell<Vec<(usize, CString)>> = const { RefCell::new(Vec::new()) };
+    }
+
+    /// Stores this thread's copy of `message` for the context at `address`, replacing its
+    /// previous one; `None` while the thread is being torn down.
+    pub(super) fn store(address: usize, message: &CStr) -> Option<*const c_char> {
+        COPIES
+            .try_with(|copies| {
+                let mut copies = copies.try_borrow_mut().ok()?;
+                copies.retain(|(a, _)| *a != address);
+                if copies.len() >= PER_THREAD {
+                    copies.remove(0);
+                }
+                copies.push((address, message.to_owned()));
+                copies.last().map(|(_, text)| text.as_ptr())
+            })
+            .ok()
+            .flatten()
+    }
+
+    /// Drops this thread's copy for a context being freed.
+    pub(super) fn forget(address: usize) {
+        let _ = COPIES.try_with(|copies| {
+            if let Ok(mut copies) = copies.try_borrow_mut() {
+                copies.retain(|(a, _)| *a != address);
+            }
+        });
+    }
 }
 
 /// C enums are taken as `uint32_t`; this decodes them and rejects unknown values.

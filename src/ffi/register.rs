@@ -13,6 +13,8 @@ use super::{ContextState, sie_context, sie_status};
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use crate::geometry::Rigid;
+use crate::memory;
 use crate::noise::NoiseScales;
 use crate::registration::{
     Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
@@ -71,13 +73,16 @@ fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
 /// Runs the core with the context's configuration and noise source; on success writes the
 /// transform and stores the result (the caller has already dropped the previous one).
 ///
+/// `init` is the initial guess as read (its correction is reported in the summary).
+///
 /// # Safety
 /// `out_t_target_source` passed `check_output` and is valid for 16 writes.
 unsafe fn run_and_store(
     state: &mut ContextState,
     cancel_requested: &AtomicBool,
     out_t_target_source: *mut f64,
-    run: impl FnOnce(&RegistrationConfig, Hooks<'_>) -> Result<RegistrationResult, Error>,
+    init: Option<Rigid>,
+    run: impl FnOnce(&RegistrationConfig, Hooks<'_>, Option<&Matrix4<f64>>) -> Result<RegistrationResult, Error>,
 ) -> Result<(), FfiError> {
     // The callbacks are Copy; local copies keep `state.config` borrowable alongside them.
     let mut noise_callback = state.noise_callback;
@@ -100,12 +105,13 @@ unsafe fn run_and_store(
         noise: noise_callback.as_mut().map(|c| c as &mut dyn NoiseScales),
         observer: Some(&mut observe),
     };
-    let result = run(&state.config, hooks)?;
+    let result = run(&state.config, hooks, init.as_ref().map(|rigid| &rigid.transform))?;
     // SAFETY: per the contract.
     unsafe { write_output(out_t_target_source, &row_major(&result.transform)) };
     let cancelled = result.stop_reason == StopReason::Cancelled;
     let iterations = result.iterations;
     state.result = Some(result);
+    state.init_correction = init.map_or(0.0, |rigid| rigid.correction);
     match cancelled_by.filter(|_| cancelled) {
         // Not a failure: the transform reached so far was written and the result stored.
         Some(by) => Err(FfiError::new(
@@ -127,8 +133,8 @@ unsafe fn register_clouds_from<T: Coordinate>(
     out_t_target_source: *mut f64,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = call.state;
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
@@ -142,20 +148,22 @@ unsafe fn register_clouds_from<T: Coordinate>(
             }
             None => None,
         };
-        let init: Option<Matrix4<f64>> =
-            unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        let working_set = memory::cloud_registration_bytes(source_points.len(), target_points.len());
+        memory::ensure_available(working_set, "the registration of these clouds")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
-                &mut state,
-                &context.cancel_requested,
+                state,
+                call.cancel_requested,
                 out_t_target_source,
-                |config, hooks| {
+                init,
+                |config, hooks, init| {
                     crate::registration::register_clouds(
                         &source_points,
                         &target_points,
                         normals.as_deref(),
-                        init.as_ref(),
+                        init,
                         config,
                         hooks,
                     )
@@ -175,25 +183,28 @@ unsafe fn register_correspondences_from<T: Coordinate>(
     out_t_target_source: *mut f64,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = call.state;
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
         let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
         let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
+        let working_set = memory::correspondence_registration_bytes(source_points.len());
+        memory::ensure_available(working_set, "the registration of these pairs")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
-                &mut state,
-                &context.cancel_requested,
+                state,
+                call.cancel_requested,
                 out_t_target_source,
-                |config, hooks| {
+                init,
+                |config, hooks, init| {
                     crate::registration::register_correspondences(
                         &source_points,
                         &target_points,
-                        init.as_ref(),
+                        init,
                         config,
                         hooks,
                     )
@@ -214,16 +225,19 @@ unsafe fn register_correspondences_from<T: Coordinate>(
 /// `sie_context_register_with_normals` to pass them).
 ///
 /// `init_T_target_source`: initial guess, 16 doubles ROW-major (T[4*row + col]; transpose
-/// Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 and rotation
-/// block orthonormal with det +1, both to 1e-6 (rounding from a matrix inverse is fine; the
-/// guess is made exactly rigid); NULL = identity. `out_T_target_source` (16 doubles,
+/// Eigen's default column-major storage), a rigid transform: last row 0 0 0 1 to 1e-6 and
+/// rotation block orthonormal to 1e-3 (max |R^T R - I|) with det +1. Rounding is fine: a matrix
+/// inverse's, or a published ground truth printed with 5 digits; the guess is made exactly
+/// rigid and `sie_summary.init_correction` says by how much. NULL = identity. `out_T_target_source` (16 doubles,
 /// row-major) is written only on success; it may be the same array as the initial guess.
 ///
 /// On success the result is stored in the context for the `sie_context_get_*` functions; on
 /// any error the previous result is discarded. Non-convergence is not an error (see
 /// `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
-/// transform), TOO_FEW_POINTS (a count is 0 or too small), NON_FINITE_INPUT (names the array
-/// and point index), CALLBACK_FAILED, BUSY.
+/// transform, a count beyond the address space), TOO_FEW_POINTS (a count is 0 or too small),
+/// NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
+/// (the copies of the clouds or the registration's working set, about 450 bytes per source
+/// and 160 per target point, cannot be allocated; checked before the registration starts).
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; each non-NULL array is readable for its count of points at

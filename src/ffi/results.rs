@@ -20,7 +20,7 @@ fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> 
     })
 }
 
-fn summary_of(result: &RegistrationResult) -> sie_summary {
+fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary {
     let first_three = |values: &[f64]| {
         let mut out = [0.0; 3];
         for (o, v) in out.iter_mut().zip(values) {
@@ -41,6 +41,7 @@ fn summary_of(result: &RegistrationResult) -> sie_summary {
         noise_shape: result.noise_shape,
         inlier_fraction: result.inlier_fraction,
         rmse: result.rmse,
+        init_correction,
         source_count: result.probabilities.len() as u64,
         correspondence_count: result.correspondences.iter().filter(|&&c| c >= 0).count() as u64,
         iterations: result.iterations,
@@ -94,10 +95,10 @@ pub unsafe extern "C" fn sie_context_get_summary(
     out: *mut sie_summary,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out, "out")?;
-        let state = context.state()?;
-        let summary = summary_of(stored_result(&state)?);
+        let state = &*call.state;
+        let summary = summary_of(stored_result(state)?, state.init_correction);
         // SAFETY: checked above; writable per the contract.
         unsafe { write_output(out, &[summary]) };
         Ok(())
@@ -125,9 +126,9 @@ pub unsafe extern "C" fn sie_context_get_inlier_probabilities(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let result = stored_result(state)?;
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &result.probabilities, "source points") }
     })
@@ -148,9 +149,9 @@ pub unsafe extern "C" fn sie_context_get_correspondences(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let result = stored_result(state)?;
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &result.correspondences, "source points") }
     })
@@ -182,7 +183,7 @@ pub unsafe extern "C" fn sie_context_get_histogram(
     capacity: usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
+    boundary(unsafe { ctx.as_ref() }, |call| {
         check_output(out_model, "out_model")?;
         let arrays = [
             (out_counts, "out_counts"),
@@ -193,8 +194,8 @@ pub unsafe extern "C" fn sie_context_get_histogram(
         for (ptr, name) in arrays {
             check_optional_output(ptr, name)?;
         }
-        let state = context.state()?;
-        let result = stored_result(&state)?;
+        let state = &*call.state;
+        let result = stored_result(state)?;
         let histogram = result.histograms.get(index).ok_or_else(|| {
             FfiError::invalid(format!(
                 "index {index} is out of range: the result has {} histograms",
@@ -247,9 +248,9 @@ pub unsafe extern "C" fn sie_context_get_trace(
     out_len: *mut usize,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let state = context.state()?;
-        let entries: Vec<sie_trace_entry> = stored_result(&state)?.trace.iter().map(trace_entry_of).collect();
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let state = &*call.state;
+        let entries: Vec<sie_trace_entry> = stored_result(state)?.trace.iter().map(trace_entry_of).collect();
         // SAFETY: forwarded contract.
         unsafe { write_buffer(out, capacity, out_len, &entries, "trace entries") }
     })

@@ -24,12 +24,11 @@ unsafe fn update_config(
     change: impl FnOnce(&mut RegistrationConfig) -> Result<(), FfiError>,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
-        let mut config = state.config.clone();
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let mut config = call.state.config.clone();
         change(&mut config)?;
         config.validate()?;
-        state.config = config;
+        call.state.config = config;
         Ok(())
     })
 }
@@ -164,8 +163,8 @@ pub unsafe extern "C" fn sie_context_set_noise_callback(
     user_data: *mut c_void,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        context.state_mut()?.noise_callback = noise_fn.map(|function| NoiseCallback { function, user_data });
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        call.state.noise_callback = noise_fn.map(|function| NoiseCallback { function, user_data });
         Ok(())
     })
 }
@@ -337,6 +336,25 @@ pub unsafe extern "C" fn sie_context_set_skip_non_finite(ctx: *mut sie_context, 
     }
 }
 
+/// Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
+/// `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
+/// mark invalid pixels so; they are not measurements, and point-to-point matches them to each
+/// other (at residual 0 at the identity). Dropped source points report inlier probability 0
+/// and target index -1. Default: false (0 0 0 can be a real point).
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_skip_origin(ctx: *mut sie_context, enabled: bool) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.skip_origin = enabled;
+            Ok(())
+        })
+    }
+}
+
 /// Installs (or with NULL `progress_fn`, removes) the per-iteration progress callback; see
 /// `sie_progress_fn`. `user_data` is passed back unchanged and never freed by the library.
 ///
@@ -350,9 +368,8 @@ pub unsafe extern "C" fn sie_context_set_progress_callback(
     user_data: *mut c_void,
 ) -> sie_status {
     // SAFETY: NULL or live per the contract.
-    boundary(unsafe { ctx.as_ref() }, |context| {
-        let mut state = context.state_mut()?;
-        state.progress_callback = progress_fn.map(|function| ProgressCallback { function, user_data });
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        call.state.progress_callback = progress_fn.map(|function| ProgressCallback { function, user_data });
         Ok(())
     })
 }

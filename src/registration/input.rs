@@ -12,14 +12,19 @@ pub(crate) fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())
 }
 
-/// Indices of the finite points, or `None` when every point is finite (nothing to copy).
-pub(crate) fn finite_indices(points: &[Point]) -> Option<Vec<u32>> {
-    if points.iter().all(is_finite) {
+/// Whether a point survives `skip_non_finite` / `skip_origin` (0.0 == -0.0).
+pub(crate) fn keeps(config: &RegistrationConfig, p: &Point) -> bool {
+    (!config.skip_non_finite || is_finite(p)) && !(config.skip_origin && *p == [0.0; 3])
+}
+
+/// Indices of the points kept, or `None` when every point is (nothing to copy).
+pub(crate) fn kept_indices(points: &[Point], config: &RegistrationConfig) -> Option<Vec<u32>> {
+    if points.iter().all(|p| keeps(config, p)) {
         return None;
     }
     Some(
         (0..points.len() as u32)
-            .filter(|&i| is_finite(&points[i as usize]))
+            .filter(|&i| keeps(config, &points[i as usize]))
             .collect(),
     )
 }

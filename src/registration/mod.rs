@@ -112,6 +112,11 @@ pub struct RegistrationConfig {
     /// (depth images and PCL clouds with `is_dense = false` carry them). Dropped source points
     /// report probability 0 and no match; a non-finite target normal counts as "no normal".
     pub skip_non_finite: bool,
+    /// Drop points (or pairs) at exactly (0, 0, 0) the same way: organised clouds from depth
+    /// sensors mark invalid pixels so. They are not measurements, and with both clouds from the
+    /// same sensor point-to-point matches them to each other (at residual 0 at the identity).
+    /// Off by default: 0 0 0 can be a real point.
+    pub skip_origin: bool,
 }
 
 impl Default for RegistrationConfig {
@@ -134,6 +139,7 @@ impl Default for RegistrationConfig {
             seed: 0x5EED,
             record_trace: false,
             skip_non_finite: false,
+            skip_origin: false,
         }
     }
 }

@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::driver::run;
 use super::input::{
-    checked_initial_guess, expand, finite_indices, is_finite, noise_sigmas, require_finite, require_points,
+    checked_initial_guess, expand, is_finite, keeps, kept_indices, noise_sigmas, require_finite, require_points,
 };
 use super::units::Units;
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
@@ -39,15 +39,16 @@ pub fn register_correspondences(
             target.len()
         )));
     }
-    if config.skip_non_finite {
+    if config.skip_non_finite || config.skip_origin {
         let kept: Vec<u32> = (0..source.len() as u32)
-            .filter(|&i| is_finite(&source[i as usize]) && is_finite(&target[i as usize]))
+            .filter(|&i| keeps(config, &source[i as usize]) && keeps(config, &target[i as usize]))
             .collect();
         if kept.len() < source.len() {
             let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
             let (source_kept, target_kept) = (pick(source), pick(target));
             let finite = RegistrationConfig {
                 skip_non_finite: false,
+                skip_origin: false,
                 ..config.clone()
             };
             let share = kept.len() as f64 / source.len() as f64;
@@ -371,7 +372,7 @@ fn squared_norms(rows: &Rows, cols: usize) -> Vec<f64> {
         .collect()
 }
 
-/// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
+/// `register_clouds` on the kept points only (`skip_non_finite`, `skip_origin`); a non-finite normal becomes "no normal".
 fn register_finite_clouds(
     source: &[Point],
     target: &[Point],
@@ -382,10 +383,11 @@ fn register_finite_clouds(
 ) -> Result<RegistrationResult, Error> {
     let finite = RegistrationConfig {
         skip_non_finite: false,
+        skip_origin: false,
         ..config.clone()
     };
-    let source_kept = finite_indices(source);
-    let target_kept = finite_indices(target);
+    let source_kept = kept_indices(source, config);
+    let target_kept = kept_indices(target, config);
     let pick = |points: &[Point], kept: &Option<Vec<u32>>| -> Vec<Point> {
         match kept {
             Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
@@ -460,7 +462,7 @@ pub fn register_clouds(
             )));
         }
     }
-    if config.skip_non_finite {
+    if config.skip_non_finite || config.skip_origin {
         return register_finite_clouds(source, target, target_normals, init, config, hooks);
     }
     require_points("source", source.len(), 3)?;

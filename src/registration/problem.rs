@@ -483,8 +483,15 @@ impl<'a> CloudProblem<'a> {
         let (last_move, typical_margin) = (moves.last(), self.typical_margin);
         self.workers
             .for_each_chunk_mut(&mut pass.matches, |start, chunk| {
+                let mut previous: Option<(&Point, Match)> = None;
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     let a = &points[start + k];
+                    // A copy of the previous point (depth frames: a third of them at 0 0 0, next
+                    // to each other in curve order) has the same history, so the same match.
+                    if let Some((_, matched)) = previous.filter(|(p, _)| *p == a) {
+                        *slot = matched;
+                        continue;
+                    }
                     let point = transform_point(transform, a);
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
@@ -513,6 +520,7 @@ impl<'a> CloudProblem<'a> {
                         }
                     }
                     slot.point = point;
+                    previous = Some((a, *slot));
                 }
             });
     }

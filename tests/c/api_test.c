@@ -277,7 +277,8 @@ static void test_version_and_status_strings(void) {
     CHECK(strcmp(sie_status_str(SIE_STATUS_BUFFER_TOO_SMALL), "buffer too small") == 0);
     CHECK(strcmp(sie_status_str(SIE_STATUS_PANIC), "internal panic") == 0);
     CHECK(strcmp(sie_status_str(SIE_STATUS_CANCELLED), "cancelled") == 0);
-    CHECK(strcmp(sie_status_str(10), "unknown status") == 0);
+    CHECK(strcmp(sie_status_str(SIE_STATUS_OUT_OF_MEMORY), "out of memory") == 0);
+    CHECK(strcmp(sie_status_str(11), "unknown status") == 0);
     CHECK(strcmp(sie_status_str(0xFFFFFFFFu), "unknown status") == 0);
     CHECK(sizeof(sie_status) == 4);
 }
@@ -431,6 +432,11 @@ static void test_registration_errors(sie_context *ctx) {
            SIE_STATUS_TOO_FEW_POINTS);
     CHECK(error_contains(ctx, "source_count"));
     EXPECT(ctx, sie_context_register(ctx, pair_source, PAIRS, 0, NULL, 0, 0, NULL, T), SIE_STATUS_NULL_ARGUMENT);
+    /* A count whose extent fits the address space at 12 bytes a point, but not its copy at 24:
+     * refused before anything is read (it used to panic on "capacity overflow"). */
+    EXPECT(ctx, sie_context_register(ctx, pair_source, (size_t)0x0aaaaaaaaaaaaaa9ull, 12, pair_target, PAIRS, 0, NULL, T),
+           SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "address space"));
 
     memcpy(bad, pair_source, sizeof(bad));
     bad[3 * 17 + 2] = NAN;

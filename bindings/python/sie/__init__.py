@@ -78,6 +78,7 @@ class Status(_NamedEnum):
     BUFFER_TOO_SMALL = 7
     BUSY = 8
     CANCELLED = 9
+    OUT_OF_MEMORY = 10
     PANIC = 100
 
 
@@ -179,6 +180,7 @@ class Summary:
     noise_shape: float
     inlier_fraction: float
     rmse: float
+    init_correction: float  # how much the initial guess was corrected to be exactly rigid
     source_count: int
     correspondence_count: int
     iterations: int
@@ -491,6 +493,11 @@ class Context:
         self._check(_lib.sie_context_set_skip_non_finite(self._handle, bool(enabled)))
         return self
 
+    def set_skip_origin(self, enabled: bool) -> "Context":
+        """Drop points at exactly 0 0 0 (depth sensors' invalid pixels) like non-finite ones."""
+        self._check(_lib.sie_context_set_skip_origin(self._handle, bool(enabled)))
+        return self
+
     def set_progress_callback(self, function: Optional[ProgressCallback]) -> "Context":
         """function(entry: TraceEntry) after every iteration, on the calling thread; returning
         False cancels the registration (None or True continue). Whatever it raises cancels it and
@@ -618,7 +625,7 @@ class Context:
         self._check(_lib.sie_context_get_summary(self._handle, ctypes.byref(raw)))
         return Summary(
             tuple(raw.sigma), tuple(raw.beta), raw.penalty, raw.noise_shape, raw.inlier_fraction, raw.rmse,
-            int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
+            raw.init_correction, int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
             _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
         )
 

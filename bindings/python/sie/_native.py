@@ -31,6 +31,7 @@ class sie_summary(ctypes.Structure):
         ("noise_shape", ctypes.c_double),
         ("inlier_fraction", ctypes.c_double),
         ("rmse", ctypes.c_double),
+        ("init_correction", ctypes.c_double),
         ("source_count", ctypes.c_uint64),
         ("correspondence_count", ctypes.c_uint64),
         ("iterations", ctypes.c_uint32),
@@ -107,6 +108,7 @@ _SIGNATURES = {
     "sie_context_set_seed": (status_t, [_ctx, ctypes.c_uint64]),
     "sie_context_set_trace": (status_t, [_ctx, ctypes.c_bool]),
     "sie_context_set_skip_non_finite": (status_t, [_ctx, ctypes.c_bool]),
+    "sie_context_set_skip_origin": (status_t, [_ctx, ctypes.c_bool]),
     "sie_context_set_progress_callback": (status_t, [_ctx, PROGRESS_FN, ctypes.c_void_p]),
     "sie_context_register": (
         status_t,

@@ -249,8 +249,14 @@ def test_initial_guess_and_caller_normals(clouds):
     source, target, normals = clouds
     ctx = sie.Context(max_iterations=100)
     guess = rigid(0.05, [0.3, -0.2, 1.0], [0.05, 0, 0])
-    rotation, translation = pose_error(ctx.align(source, target, init=guess).transform, TRUTH)
+    result = ctx.align(source, target, init=guess)
+    rotation, translation = pose_error(result.transform, TRUTH)
     assert rotation < 0.2 and translation < 0.004
+    assert result.summary.init_correction < 1e-12
+    # A guess printed with 4 decimals (orthonormal to ~5e-5, like published ground truths) is
+    # accepted, made exactly rigid, and the correction reported.
+    rounded = ctx.align(source, target, init=np.round(guess, 4))
+    assert 1e-6 < rounded.summary.init_correction < 1e-4
     with_normals = ctx.align(source, target, target_normals=normals)
     rotation, translation = pose_error(with_normals.transform, TRUTH)
     assert rotation < 0.2 and translation < 0.004

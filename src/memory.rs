@@ -1,0 +1,136 @@
+//! Memory for work sized by the input, asked for fallibly: a request the process cannot satisfy
+//! (an address-space limit, `vm.overcommit_memory = 2`, or a count no machine could hold) is an
+//! error the caller reports, never an abort of the host process.
+//!
+//! Two tools: [`try_vec`] for buffers this crate allocates itself, and [`ensure_available`]
+//! before work whose allocations cannot all be made fallible (the kd-tree crate, nalgebra and
+//! the standard library allocate infallibly): it asks for the work's measured peak at once, so
+//! a limit is met up front instead of part-way through. The peaks are upper bounds measured by
+//! `tests/peak_memory.rs` (a counting allocator), which fails when the code outgrows them.
+use std::collections::TryReserveError;
+use std::fmt;
+
+/// Why memory for some input could not be had.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum MemoryError {
+    /// More bytes than the address space holds (`isize::MAX`): the count is impossible.
+    TooLarge { what: String },
+    /// The allocator refused: not enough memory (or address space) left for this input.
+    OutOfMemory { what: String, bytes: usize },
+}
+
+impl fmt::Display for MemoryError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            MemoryError::TooLarge { what } => {
+                write!(f, "{what} needs more bytes than the address space holds")
+            }
+            MemoryError::OutOfMemory { what, bytes } => write!(
+                f,
+                "out of memory: {what} needs {} more ({bytes} bytes) than the process can allocate now",
+                human_bytes(*bytes)
+            ),
+        }
+    }
+}
+
+impl std::error::Error for MemoryError {}
+
+/// An empty `Vec` with room for `count` elements; `what` names the buffer in the error.
+pub fn try_vec<T>(count: usize, what: &str) -> Result<Vec<T>, MemoryError> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(count)
+        .map_err(|e| classify(e, what, count.saturating_mul(size_of::<T>())))?;
+    Ok(v)
+}
+
+/// Checks that `bytes` can be allocated now, by allocating (not touching) and freeing them.
+pub fn ensure_available(bytes: usize, what: &str) -> Result<(), MemoryError> {
+    let mut probe: Vec<u8> = Vec::new();
+    probe
+        .try_reserve_exact(bytes)
+        .map_err(|e| classify(e, what, bytes))?;
+    // The pointer escapes, so the allocation cannot be optimised away.
+    std::hint::black_box(probe.as_mut_ptr());
+    Ok(())
+}
+
+/// `TryReserveErrorKind` is unstable; a request beyond isize::MAX bytes is what fails as a
+/// capacity overflow (before the allocator is asked), anything else the allocator refused.
+fn classify(_error: TryReserveError, what: &str, bytes: usize) -> MemoryError {
+    if bytes > isize::MAX as usize || bytes == usize::MAX {
+        MemoryError::TooLarge {
+            what: what.to_string(),
+        }
+    } else {
+        MemoryError::OutOfMemory {
+            what: what.to_string(),
+            bytes,
+        }
+    }
+}
+
+/// `n × per_item + fixed`, saturating (a saturated request fails as too large).
+fn linear(n: usize, per_item: usize, fixed: usize) -> usize {
+    n.saturating_mul(per_item).saturating_add(fixed)
+}
+
+/// Allocator bookkeeping, small buffers and fragmentation on top of the measured peaks.
+const OVERHEAD: usize = 8 << 20;
+
+/// Peak heap of `register_clouds` (ICP) beyond its inputs. Measured (tests/peak_memory.rs,
+/// 200 k points): at most 325 B per source and 124 B per target point (point-to-point or
+/// point-to-plane, non-finite points skipped), bounded here with ~8 % margin.
+pub fn cloud_registration_bytes(source: usize, target: usize) -> usize {
+    linear(source, 352, OVERHEAD).saturating_add(target.saturating_mul(136))
+}
+
+/// Peak heap of `register_correspondences` beyond its inputs (measured at most 165 B a pair).
+pub fn correspondence_registration_bytes(pairs: usize) -> usize {
+    linear(pairs, 184, OVERHEAD)
+}
+
+/// Peak heap of `estimate_inliers` beyond its input (measured at most 12 B a residual value).
+pub fn estimate_bytes(values: usize) -> usize {
+    linear(values, 16, OVERHEAD)
+}
+
+fn human_bytes(bytes: usize) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < UNITS.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{value:.1} {}", UNITS[unit])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn impossible_sizes_are_errors_not_aborts() {
+        let error = try_vec::<[f64; 3]>(0x0aaa_aaaa_aaaa_aaa9, "source_xyz").unwrap_err();
+        assert_eq!(
+            error,
+            MemoryError::TooLarge {
+                what: "source_xyz".into()
+            }
+        );
+        assert!(error.to_string().contains("address space"), "{error}");
+        assert!(matches!(
+            ensure_available(usize::MAX, "everything"),
+            Err(MemoryError::TooLarge { .. })
+        ));
+        assert_eq!(try_vec::<u8>(16, "small").unwrap().capacity(), 16);
+        assert_eq!(ensure_available(1 << 20, "a little"), Ok(()));
+        assert_eq!(human_bytes(3 << 30), "3.0 GiB");
+        assert_eq!(human_bytes(100), "100 B");
+    }
+}

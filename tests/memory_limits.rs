@@ -1,0 +1,216 @@
+//! Out of memory and out of threads, in a child process under an address-space limit
+//! (RLIMIT_AS): the library must report a status, not abort the host (SIGABRT, "memory
+//! allocation of … failed") or panic ("failed to spawn thread").
+//!
+//! Each `#[test]` re-runs this binary for one `#[ignore]`d child test with the environment
+//! variable `SIE_CHILD_MEMORY_BUDGET` set; the child caps its own address space at its current
+//! size plus that budget, runs the scenario and prints what happened. The limit never touches
+//! the test process itself or its neighbours, and every budget is far (hundreds of MB) from
+//! what the scenario needs either way, so the outcome does not depend on the machine.
+#![cfg(target_os = "linux")]
+use std::process::Command;
+use std::ptr::null;
+
+use sie::ffi::*;
+use sie::parallel::{CHUNK, Workers};
+
+const BUDGET_VARIABLE: &str = "SIE_CHILD_MEMORY_BUDGET";
+const MIB: usize = 1 << 20;
+
+/// Runs the ignored test `name` of this binary in a child with `budget` bytes of address space
+/// beyond what it has at the start; returns its stdout, asserting that it exited normally.
+fn run_child(name: &str, budget: usize) -> String {
+    let output = Command::new(std::env::current_exe().unwrap())
+        .args([name, "--exact", "--ignored", "--nocapture", "--test-threads=1"])
+        .env(BUDGET_VARIABLE, budget.to_string())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    assert!(
+        output.status.success(),
+        "child {name} failed ({:?}):\n{stdout}\n{stderr}",
+        output.status
+    );
+    assert!(stdout.contains("1 passed"), "child {name} did not run:\n{stdout}");
+    stdout
+}
+
+/// In a child: caps the address space and returns true; run directly (without the variable):
+/// false, and the child test does nothing.
+fn limit_address_space() -> bool {
+    let Some(budget) = std::env::var(BUDGET_VARIABLE)
+        .ok()
+        .and_then(|b| b.parse::<usize>().ok())
+    else {
+        println!("run by its parent test only");
+        return false;
+    };
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let current_kb: usize = status
+        .lines()
+        .find_map(|line| line.strip_prefix("VmSize:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap();
+    let limit = (current_kb * 1024 + budget) as libc::rlim_t;
+    let cap = libc::rlimit {
+        rlim_cur: limit,
+        rlim_max: limit,
+    };
+    // SAFETY: a plain system call on a valid struct; it only lowers this process's limit.
+    assert_eq!(unsafe { libc::setrlimit(libc::RLIMIT_AS, &cap) }, 0);
+    true
+}
+
+fn last_error(ctx: *mut sie_context) -> String {
+    // SAFETY: live context; the message is copied at once.
+    unsafe { std::ffi::CStr::from_ptr(sie_context_last_error(ctx)) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// A float cloud whose f64 copy does not fit: 40 M points are 480 MB for the caller, and the
+/// copy needs 960 MB more, in a budget of 1 GiB. Before: "memory allocation of 960000000 bytes
+/// failed", SIGABRT.
+#[test]
+fn a_cloud_whose_copy_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_copy_does_not_fit", 1024 * MIB);
+    assert!(stdout.contains("status OutOfMemory"), "{stdout}");
+}
+
+#[test]
+#[ignore = "run by a_cloud_whose_copy_does_not_fit_is_out_of_memory in a limited child"]
+fn child_copy_does_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let count = 40_000_000;
+    // Zeroed pages that are never touched: address space, not memory.
+    let cloud = vec![0.0f32; 3 * count];
+    let ctx = sie_context_new();
+    let mut out = [0.0; 16];
+    // SAFETY: `cloud` holds `count` packed points; `out` holds 16 doubles.
+    let status = unsafe {
+        sie_context_register(
+            ctx,
+            cloud.as_ptr(),
+            count,
+            0,
+            cloud.as_ptr(),
+            count,
+            0,
+            null(),
+            out.as_mut_ptr(),
+        )
+    };
+    let message = last_error(ctx);
+    println!("status {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(
+        message.contains("source_xyz") && message.contains("out of memory"),
+        "{message}"
+    );
+    assert_eq!(out, [0.0; 16], "outputs must stay untouched");
+    // SAFETY: allocated above, freed once.
+    unsafe { sie_context_free(ctx) };
+}
+
+/// Clouds that are copied fine but whose registration needs more than the budget (6 M float
+/// points each: 430 MB of arrays and copies, then ~1.4 GB of working set, in 1 GiB) are
+/// refused before the registration starts; a small registration then runs in the same limited
+/// process. Before: SIGABRT part-way through.
+#[test]
+fn a_registration_whose_working_set_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_working_set_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_registration_whose_working_set_does_not_fit_is_out_of_memory in a limited child"]
+fn child_working_set_does_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let ctx = sie_context_new();
+    let register = |source: &[f32], target: &[f32], out: &mut [f64; 16]| {
+        // SAFETY: packed arrays of three floats per point; `out` holds 16 doubles.
+        unsafe {
+            sie_context_register(
+                ctx,
+                source.as_ptr(),
+                source.len() / 3,
+                0,
+                target.as_ptr(),
+                target.len() / 3,
+                0,
+                null(),
+                out.as_mut_ptr(),
+            )
+        }
+    };
+    let grid = |n: usize, shift: f32| -> Vec<f32> {
+        (0..n)
+            .flat_map(|i| {
+                [
+                    (i % 1000) as f32 * 0.01 + shift,
+                    (i / 1000 % 1000) as f32 * 0.01,
+                    (i / 1_000_000) as f32 * 0.3,
+                ]
+            })
+            .collect()
+    };
+    let mut out = [0.0; 16];
+    let (source, target) = (grid(6_000_000, 0.002), grid(6_000_000, 0.0));
+    let status = register(&source, &target, &mut out);
+    let message = last_error(ctx);
+    println!("big: {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(
+        message.contains("registration") && message.contains("GiB"),
+        "{message}"
+    );
+    assert_eq!(out, [0.0; 16]);
+    drop((source, target));
+    let scene = sie::synthetic::room_scene(2000, 0.01, 1);
+    let to_floats =
+        |points: &[[f64; 3]]| -> Vec<f32> { points.iter().flatten().map(|&c| c as f32).collect() };
+    let status = register(&to_floats(&scene.source), &to_floats(&scene.target), &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, freed once.
+    unsafe { sie_context_free(ctx) };
+}
+
+/// 1024 worker threads (the documented maximum) when the address space has room for a few
+/// dozen stacks: the work runs on the threads that started. Before: PANIC "failed to spawn
+/// thread".
+#[test]
+fn threads_the_system_refuses_are_not_needed() {
+    let stdout = run_child("child_threads_do_not_fit", 96 * MIB);
+    assert!(stdout.contains("visited every element once"), "{stdout}");
+}
+
+#[test]
+#[ignore = "run by threads_the_system_refuses_are_not_needed in a limited child"]
+fn child_threads_do_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let workers = Workers::new(1024).unwrap();
+    // 1024 chunks: one per thread if all could start (each needs a 2 MiB stack).
+    let mut data = vec![0u8; 1024 * CHUNK];
+    let threads_seen = std::sync::Mutex::new(std::collections::HashSet::new());
+    workers.for_each_chunk_mut(&mut data, |_, chunk| {
+        threads_seen.lock().unwrap().insert(std::thread::current().id());
+        for v in chunk.iter_mut() {
+            *v += 1;
+        }
+    });
+    assert!(data.iter().all(|&v| v == 1));
+    let threads = threads_seen.lock().unwrap().len();
+    println!("visited every element once, on {threads} threads");
+    // Otherwise the budget let every thread start and nothing was tested.
+    assert!(threads < 1024);
+}

@@ -1,0 +1,154 @@
+//! The working-set bounds of `sie::memory` (asked for before a registration starts, so that a
+//! memory limit gives OUT_OF_MEMORY instead of an abort part-way) against the peak heap the
+//! registrations really reach, counted at the allocator.
+//!
+//! One test in this binary on purpose: the count covers every thread of the process.
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use nalgebra::Matrix4;
+use sie::memory::{cloud_registration_bytes, correspondence_registration_bytes, estimate_bytes};
+use sie::synthetic::{paper_simulation, room_scene};
+use sie::{
+    Hooks, Metric, NoiseModel, Point, RegistrationConfig, SieOptions, estimate_inliers, register_clouds,
+    register_correspondences,
+};
+
+struct Counting;
+
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+fn grew(bytes: usize) {
+    let now = LIVE.fetch_add(bytes, Ordering::Relaxed) + bytes;
+    PEAK.fetch_max(now, Ordering::Relaxed);
+}
+
+// SAFETY: forwards to the system allocator unchanged; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let ptr = unsafe { System.alloc(layout) };
+        if !ptr.is_null() {
+            grew(layout.size());
+        }
+        ptr
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) };
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let new = unsafe { System.realloc(ptr, layout, new_size) };
+        if !new.is_null() {
+            // Both blocks exist while the contents move.
+            grew(new_size);
+            LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+        }
+        new
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Heap bytes `work` allocates at its peak beyond what was live before it.
+fn peak_of(work: impl FnOnce()) -> usize {
+    let base = LIVE.load(Ordering::Relaxed);
+    PEAK.store(base, Ordering::Relaxed);
+    work();
+    PEAK.load(Ordering::Relaxed) - base
+}
+
+/// A flat grid of points (a second shape next to the room: many unmatched points).
+fn grid(n: usize, shift: f64) -> Vec<Point> {
+    (0..n)
+        .map(|i| [(i % 500) as f64 * 0.01 + shift, (i / 500) as f64 * 0.01, 0.0])
+        .collect()
+}
+
+#[test]
+fn working_set_bounds_cover_the_measured_peaks() {
+    let scene = room_scene(60_000, 0.01, 1);
+    let (grid_source, grid_target) = (grid(60_000, 0.002), grid(60_000, 0.0));
+    let mut worst = 0.0f64;
+    for (shape, source, target) in [
+        ("room", &scene.source, &scene.target),
+        ("grid", &grid_source, &grid_target),
+    ] {
+        for metric in [Metric::PointToPlane, Metric::PointToPoint] {
+            // Skipping non-finite points copies the clouds once more: the larger case.
+            for skip_non_finite in [true] {
+                // Per-point noise scales (the depth model here, a callback alike) add two
+                // arrays of σ.
+                let config = RegistrationConfig {
+                    metric,
+                    skip_non_finite,
+                    record_trace: true,
+                    noise: NoiseModel::QuadraticDepth,
+                    ..RegistrationConfig::default()
+                };
+                // Equal sizes, and each cloud ten times the other, so neither per-point
+                // coefficient can hide behind the other.
+                for (ns, nt) in [(60_000, 60_000), (60_000, 6_000), (6_000, 60_000)] {
+                    let (source, target) = (&source[..ns], &target[..nt]);
+                    let peak = peak_of(|| {
+                        let result = register_clouds(source, target, None, None, &config, Hooks::default());
+                        drop(result.unwrap());
+                    });
+                    let bound = cloud_registration_bytes(ns, nt);
+                    let use_of_bound = peak as f64 / bound as f64;
+                    println!(
+                        "{shape} {metric:?} skip {skip_non_finite}, {ns} + {nt} points: peak {peak} B, bound {bound} B ({:.0} %)",
+                        100.0 * use_of_bound
+                    );
+                    assert!(peak <= bound, "{shape} {metric:?} {ns}+{nt}: {peak} > {bound}");
+                    worst = worst.max(use_of_bound);
+                }
+            }
+        }
+    }
+    // Not so loose that it refuses registrations that would fit.
+    assert!(
+        worst > 0.6,
+        "the tightest case uses only {:.0} % of its bound",
+        100.0 * worst
+    );
+
+    let data = paper_simulation(50_000, 50_000, 0.01, &Matrix4::identity(), 1);
+    let pairs = data.source.len();
+    let peak = peak_of(|| {
+        let result = register_correspondences(
+            &data.source,
+            &data.target,
+            None,
+            &RegistrationConfig::default(),
+            Hooks::default(),
+        );
+        drop(result.unwrap());
+    });
+    println!(
+        "{pairs} pairs: peak {peak} B, bound {}",
+        correspondence_registration_bytes(pairs)
+    );
+    assert!(peak <= correspondence_registration_bytes(pairs));
+    assert!(peak as f64 > 0.5 * (correspondence_registration_bytes(pairs) - (8 << 20)) as f64);
+
+    let residuals: Vec<f64> = (0..300_000)
+        .map(|i| ((i * 7919) % 1000) as f64 * 1e-3 - 0.5)
+        .collect();
+    let peak = peak_of(|| {
+        let estimate = estimate_inliers(&residuals, 3, None, 0.0, &SieOptions::default());
+        drop(estimate.unwrap());
+    });
+    println!(
+        "{} residuals: peak {peak} B, bound {}",
+        residuals.len(),
+        estimate_bytes(residuals.len())
+    );
+    assert!(peak <= estimate_bytes(residuals.len()));
+}
