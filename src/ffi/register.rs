@@ -55,7 +55,7 @@ impl<T: Coordinate> PointArray<T> {
     }
 }
 
-fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
+pub(super) fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
     for (index, normal) in normals.iter().enumerate() {
         let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
         // An exact zero vector marks a target point without a normal: it is never matched.
@@ -73,7 +73,7 @@ fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
 ///
 /// # Safety
 /// `out_t_target_source` passed `check_output` and is valid for 16 writes.
-unsafe fn run_and_store(
+pub(super) unsafe fn run_and_store(
     state: &mut ContextState,
     cancel_requested: &AtomicBool,
     out_t_target_source: *mut f64,

@@ -7,6 +7,7 @@ mod driver;
 mod input;
 mod pipeline;
 mod problem;
+mod target;
 
 use std::ops::ControlFlow;
 
@@ -272,7 +273,8 @@ pub struct SearchReport {
 }
 
 
-pub use pipeline::{register_clouds, register_correspondences};
+pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
+pub use target::{PrepareOptions, PreparedTarget};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.
 #[derive(Default)]

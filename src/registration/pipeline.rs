@@ -9,6 +9,7 @@ use super::input::{
     checked_initial_guess, expand, finite_indices, is_finite, noise_sigmas, require_finite, require_points,
 };
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem};
+use super::target::{PrepareOptions, PreparedTarget};
 use super::{
     Hooks, Metric, Observer, TraceEntry, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
 };
@@ -17,7 +18,7 @@ use crate::sie::hypotheses::{self, Pairs};
 use crate::sie::significance;
 use crate::error::Error;
 use crate::geometry::Point;
-use crate::noise::NoiseScales;
+use crate::noise::{NoiseModel, NoiseScales};
 use crate::parallel::Workers;
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
@@ -151,50 +152,6 @@ fn register_from_hypotheses(
     Ok(result)
 }
 
-/// `register_clouds` on the finite points only; a non-finite normal becomes "no normal".
-fn register_finite_clouds(
-    source: &[Point],
-    target: &[Point],
-    target_normals: Option<&[Point]>,
-    init: Option<&Matrix4<f64>>,
-    config: &RegistrationConfig,
-    hooks: Hooks<'_>,
-) -> Result<RegistrationResult, Error> {
-    let finite = RegistrationConfig {
-        skip_non_finite: false,
-        ..config.clone()
-    };
-    let source_kept = finite_indices(source);
-    let target_kept = finite_indices(target);
-    let pick = |points: &[Point], kept: &Option<Vec<u32>>| -> Vec<Point> {
-        match kept {
-            Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
-            None => points.to_vec(),
-        }
-    };
-    let normals: Option<Vec<Point>> = target_normals.map(|normals| {
-        pick(normals, &target_kept)
-            .into_iter()
-            .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
-            .collect()
-    });
-    let source_points = pick(source, &source_kept);
-    let target_points = pick(target, &target_kept);
-    let share = source_points.len() as f64 / source.len().max(1) as f64;
-    let result = with_share(hooks, share, |hooks| {
-        register_clouds(
-            &source_points,
-            &target_points,
-            normals.as_deref(),
-            init,
-            &finite,
-            hooks,
-        )
-    })?;
-    let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
-    Ok(expand(result, &source_map, source.len(), target_kept.as_deref()))
-}
-
 /// Runs `register` with `hooks` whose observer sees inlier fractions scaled by `share` (kept
 /// / given source points): dropped points count 0, as in the result.
 fn with_share<R>(hooks: Hooks<'_>, share: f64, register: impl FnOnce(Hooks<'_>) -> R) -> R {
@@ -221,6 +178,10 @@ fn with_share<R>(hooks: Hooks<'_>, share: f64, register: impl FnOnce(Hooks<'_>) 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
 /// `target_normals` (one per target point; zero vectors mark points without a normal) are used
 /// for point-to-plane; without them normals come from k-NN PCA on the target.
+///
+/// The same as preparing the target (`PreparedTarget::new` with
+/// `PrepareOptions::from_config(config)`) and calling `register_clouds_to`, bit for bit; prepare
+/// it yourself when one target serves several registrations.
 pub fn register_clouds(
     source: &[Point],
     target: &[Point],
@@ -240,38 +201,104 @@ pub fn register_clouds(
             )));
         }
     }
-    if config.skip_non_finite {
-        return register_finite_clouds(source, target, target_normals, init, config, hooks);
+    if !config.skip_non_finite {
+        require_points("source", source.len(), 3)?;
+        require_points("target", target.len(), 3)?;
+        require_finite("source", source)?;
     }
-    require_points("source", source.len(), 3)?;
-    require_points("target", target.len(), 3)?;
-    require_finite("source", source)?;
-    require_finite("target", target)?;
-    if let Some(normals) = target_normals {
-        require_finite("target normals", normals)?;
-        if config.metric == Metric::PointToPlane && normals.iter().all(|n| *n == [0.0; 3]) {
+    let prepared = PreparedTarget::new(target, target_normals, &PrepareOptions::from_config(config))?;
+    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// ICP of `source` onto a prepared target: `register_clouds` without building the target's
+/// kd-tree (normals estimated by an earlier registration are reused). The result is the one
+/// `register_clouds` gives on the same clouds, bit for bit, whatever registrations ran on the
+/// target before or run on it concurrently from other threads.
+///
+/// Errors as `register_clouds`; besides, a point-to-plane config whose `normal_neighbours`
+/// differs from the one the target's normals are estimated with (`PrepareOptions`) is
+/// refused. `config.skip_non_finite` applies to the source; the target's is fixed when it is
+/// prepared.
+pub fn register_clouds_to(
+    source: &[Point],
+    target: &PreparedTarget,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
+    let started = Instant::now();
+    config.validate()?;
+    let mut result = register_to_prepared(source, target, init, config, hooks, 0.0)?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// `register_clouds_to` after `config.validate()`; `index_seconds` is what preparing the target
+/// cost this call.
+fn register_to_prepared(
+    source: &[Point],
+    target: &PreparedTarget,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+    index_seconds: f64,
+) -> Result<RegistrationResult, Error> {
+    if config.metric == Metric::PointToPlane {
+        if target.given_normals_all_zero() {
             return Err(Error::InvalidArgument(
                 "every target normal is 0 0 0; point-to-plane needs normals (or pass none to estimate them)"
                     .into(),
             ));
         }
+        if !target.has_given_normals() && target.normal_neighbours() != config.normal_neighbours {
+            return Err(Error::InvalidArgument(format!(
+                "the prepared target estimates normals from {} neighbours but normal_neighbours is {}; \
+                 prepare the target with the same normal_neighbours",
+                target.normal_neighbours(),
+                config.normal_neighbours
+            )));
+        }
     }
+    let source_kept = if config.skip_non_finite {
+        finite_indices(source)
+    } else {
+        None
+    };
+    let kept_points: Option<Vec<Point>> = source_kept
+        .as_ref()
+        .map(|kept| kept.iter().map(|&i| source[i as usize]).collect());
+    let points = kept_points.as_deref().unwrap_or(source);
+    require_points("source", points.len(), 3)?;
+    require_finite("source", points)?;
     let init = checked_initial_guess(init)?;
-    let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
-    let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
-    let mut problem = CloudProblem::new(
-        source,
-        target,
-        target_normals,
-        source_sigma,
-        target_sigma,
-        config,
-        workers,
-    )
-    .map_err(Error::InvalidArgument)?;
-    let mut result = register_cloud_problem(&mut problem, init, config, hooks.observer)?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    let share = points.len() as f64 / source.len().max(1) as f64;
+    let result = with_share(hooks, share, |hooks| {
+        let target_points = if hooks.noise.is_some() || config.noise != NoiseModel::Constant {
+            target.points_in_caller_order()
+        } else {
+            Vec::new()
+        };
+        let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, points, &target_points)?;
+        let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
+        let mut problem = CloudProblem::new(
+            points,
+            target,
+            source_sigma,
+            target_sigma,
+            config,
+            workers,
+            index_seconds,
+        )
+        .map_err(Error::InvalidArgument)?;
+        register_cloud_problem(&mut problem, init, config, hooks.observer)
+    })?;
+    if source_kept.is_none() && target.kept().is_none() {
+        return Ok(result);
+    }
+    let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
+    Ok(expand(result, &source_map, source.len(), target.kept()))
 }
 
 /// ICP on a built problem (target index and normals ready): SIE's starts, or the baseline's
