@@ -346,8 +346,11 @@ class Context {
     }
     Context &set_normal_neighbours(std::uint32_t neighbours) {
         check(sie_context_set_normal_neighbours(get(), neighbours));
+        normal_neighbours_ = neighbours;
         return *this;
     }
+    /** The normal_neighbours setting (a Target prepared with another count refuses this context). */
+    std::uint32_t normal_neighbours() const noexcept { return normal_neighbours_; }
     Context &set_threads(std::uint32_t threads) {
         check(sie_context_set_threads(get(), threads));
         return *this;
@@ -659,6 +662,7 @@ class Context {
     std::unique_ptr<Holder<NoiseFunction>> noise_;
     std::unique_ptr<Holder<ProgressFunction>> progress_;
     std::unique_ptr<sie_context, Free> context_;
+    std::uint32_t normal_neighbours_ = 10; // the library's default
 };
 
 } // namespace sie

@@ -51,11 +51,22 @@ fn prepared_equals_unprepared_bit_for_bit() {
     let scene = room_scene(6_000, 0.01, 21);
     let init = Matrix4::identity();
     for (what, config) in configs() {
-        let direct = register_clouds(&scene.source, &scene.target, None, Some(&init), &config, Hooks::default())
-            .expect(what);
+        let direct = register_clouds(
+            &scene.source,
+            &scene.target,
+            None,
+            Some(&init),
+            &config,
+            Hooks::default(),
+        )
+        .expect(what);
         let (rotation, translation) = common::pose_error(&direct.transform, &scene.t_target_source);
-        assert!(rotation < 0.5 && translation < 0.02, "{what}: {rotation} deg {translation} m");
-        let prepared = PreparedTarget::new(&scene.target, None, &PrepareOptions::from_config(&config)).unwrap();
+        assert!(
+            rotation < 0.5 && translation < 0.02,
+            "{what}: {rotation} deg {translation} m"
+        );
+        let prepared =
+            PreparedTarget::new(&scene.target, None, &PrepareOptions::from_config(&config)).unwrap();
         // Twice: the second call reuses the normals the first estimated.
         for round in 0..2 {
             let again = register_clouds_to(&scene.source, &prepared, Some(&init), &config, Hooks::default())
@@ -91,7 +102,11 @@ fn one_target_shared_by_threads_gives_the_serial_results() {
     let sources: Vec<Vec<Point>> = (0..6)
         .map(|k| {
             let shift = 0.01 * k as f64;
-            scene.source.iter().map(|p| [p[0] + shift, p[1] - shift, p[2]]).collect()
+            scene
+                .source
+                .iter()
+                .map(|p| [p[0] + shift, p[1] - shift, p[2]])
+                .collect()
         })
         .collect();
     let config = RegistrationConfig {
@@ -110,7 +125,9 @@ fn one_target_shared_by_threads_gives_the_serial_results() {
             .cloned()
             .map(|source| {
                 let (shared, config) = (Arc::clone(&shared), config.clone());
-                std::thread::spawn(move || register_clouds_to(&source, &shared, None, &config, Hooks::default()))
+                std::thread::spawn(move || {
+                    register_clouds_to(&source, &shared, None, &config, Hooks::default())
+                })
             })
             .collect();
         for (k, handle) in handles.into_iter().enumerate() {
@@ -141,14 +158,32 @@ fn given_normals_and_skipped_points_map_back_to_the_callers_indices() {
         target_normals[i] = [0.0, f64::INFINITY, 0.0];
         source[i + 1] = [0.0, 0.0, f64::NEG_INFINITY];
     }
-    let direct = register_clouds(&source, &target, Some(&target_normals), None, &config, Hooks::default()).unwrap();
-    let prepared = PreparedTarget::new(&target, Some(&target_normals), &PrepareOptions::from_config(&config)).unwrap();
+    let direct = register_clouds(
+        &source,
+        &target,
+        Some(&target_normals),
+        None,
+        &config,
+        Hooks::default(),
+    )
+    .unwrap();
+    let prepared = PreparedTarget::new(
+        &target,
+        Some(&target_normals),
+        &PrepareOptions::from_config(&config),
+    )
+    .unwrap();
     assert_eq!((prepared.len(), prepared.indexed_len()), (4_000, 3_997));
     let reused = register_clouds_to(&source, &prepared, None, &config, Hooks::default()).unwrap();
     assert_same(&direct, &reused, "skipped points, given normals");
     assert_eq!(reused.correspondences.len(), source.len());
     assert_eq!(reused.correspondences[1], -1);
-    assert!(reused.correspondences.iter().all(|&t| t < 0 || ![0, 17, 999].contains(&t)));
+    assert!(
+        reused
+            .correspondences
+            .iter()
+            .all(|&t| t < 0 || ![0, 17, 999].contains(&t))
+    );
     // Correspondences name the caller's target points: each is a nearest finite target of the
     // transformed source point (brute force on a subset).
     let distance = |p: &Point, q: &Point| (0..3).map(|d| (p[d] - q[d]).powi(2)).sum::<f64>();
@@ -188,14 +223,27 @@ fn a_config_that_does_not_fit_the_prepared_normals_is_refused() {
     };
     register_clouds_to(&scene.source, &prepared, None, &point_to_point, Hooks::default()).unwrap();
     let zero_normals = vec![[0.0; 3]; scene.target.len()];
-    let without = PreparedTarget::new(&scene.target, Some(&zero_normals), &PrepareOptions::default()).unwrap();
+    let without =
+        PreparedTarget::new(&scene.target, Some(&zero_normals), &PrepareOptions::default()).unwrap();
     assert!(matches!(
-        register_clouds_to(&scene.source, &without, None, &RegistrationConfig::default(), Hooks::default()),
+        register_clouds_to(
+            &scene.source,
+            &without,
+            None,
+            &RegistrationConfig::default(),
+            Hooks::default()
+        ),
         Err(Error::InvalidArgument(_))
     ));
     let few = [[0.0; 3]; 2];
     assert!(matches!(
-        register_clouds_to(&few, &prepared, None, &RegistrationConfig::default(), Hooks::default()),
+        register_clouds_to(
+            &few,
+            &prepared,
+            None,
+            &RegistrationConfig::default(),
+            Hooks::default()
+        ),
         Err(Error::TooFewPoints(_))
     ));
 }

@@ -101,7 +101,13 @@ fn family(name: &str, draw: Draw, outliers: usize, structured: usize, instances:
 fn rotations_about_any_axis() {
     for outliers in [100, 1000] {
         for angle in [PI / 2.0, 3.0 * PI / 4.0, PI] {
-            family(&format!("rotation {angle:.2} rad, {outliers} outliers"), Draw::Rotation(angle), outliers, 0, 12);
+            family(
+                &format!("rotation {angle:.2} rad, {outliers} outliers"),
+                Draw::Rotation(angle),
+                outliers,
+                0,
+                12,
+            );
         }
     }
 }
@@ -109,27 +115,57 @@ fn rotations_about_any_axis() {
 #[test]
 fn translations_in_any_direction() {
     for outliers in [100, 1000] {
-        family(&format!("translation 1.0, {outliers} outliers"), Draw::Translation(1.0), outliers, 0, 12);
+        family(
+            &format!("translation 1.0, {outliers} outliers"),
+            Draw::Translation(1.0),
+            outliers,
+            0,
+            12,
+        );
     }
 }
 
 #[test]
 fn combined_rotations_and_translations() {
     for outliers in [100, 1000] {
-        family(&format!("combined, {outliers} outliers"), Draw::Combined, outliers, 0, 20);
+        family(
+            &format!("combined, {outliers} outliers"),
+            Draw::Combined,
+            outliers,
+            0,
+            20,
+        );
     }
 }
 
 #[test]
 fn half_as_many_structured_outliers_as_inliers() {
     // 1000 outliers, 500 of them following one other rigid motion: SIE finds the larger set.
-    family("500 structured of 1000 outliers, combined", Draw::Combined, 1000, 500, 20);
-    family("400 structured of 1000 outliers, translation 0.5", Draw::Translation(0.5), 1000, 400, 12);
+    family(
+        "500 structured of 1000 outliers, combined",
+        Draw::Combined,
+        1000,
+        500,
+        20,
+    );
+    family(
+        "400 structured of 1000 outliers, translation 0.5",
+        Draw::Translation(0.5),
+        1000,
+        400,
+        12,
+    );
 }
 
 #[test]
 fn ten_outliers_per_inlier() {
-    family("rotation π/2, 10 000 outliers", Draw::Rotation(PI / 2.0), 10_000, 0, 8);
+    family(
+        "rotation π/2, 10 000 outliers",
+        Draw::Rotation(PI / 2.0),
+        10_000,
+        0,
+        8,
+    );
     family("rotation π, 10 000 outliers", Draw::Rotation(PI), 10_000, 0, 8);
 }
 
@@ -151,7 +187,9 @@ fn the_summary_says_which_start_decided() {
     // Started at the truth, the initial guess is one of the candidates; whichever start wins
     // ends at the same fit.
     let truth = weighted_rigid_fit(
-        &(0..INLIERS).map(|i| (data.source[i], data.target[i])).collect::<Vec<_>>(),
+        &(0..INLIERS)
+            .map(|i| (data.source[i], data.target[i]))
+            .collect::<Vec<_>>(),
         &[1.0; INLIERS],
     )
     .unwrap()
@@ -170,7 +208,8 @@ fn the_summary_says_which_start_decided() {
         starts: sie::Starts::InitialGuess,
         ..RegistrationConfig::default()
     };
-    let local = register_correspondences(&data.source, &data.target, None, &paper_only, Hooks::default()).unwrap();
+    let local =
+        register_correspondences(&data.source, &data.target, None, &paper_only, Hooks::default()).unwrap();
     assert_eq!(local.search.start, StartKind::InitialGuess);
     assert_eq!(local.search.hypotheses, 0);
 }
