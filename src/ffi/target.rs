@@ -87,7 +87,17 @@ pub unsafe extern "C" fn sie_context_prepare_target(
     out_target: *mut *mut sie_target,
 ) -> sie_status {
     // SAFETY: forwarded contract.
-    unsafe { prepare_target_from(ctx, xyz, count, stride_bytes, normals, normals_stride_bytes, out_target) }
+    unsafe {
+        prepare_target_from(
+            ctx,
+            xyz,
+            count,
+            stride_bytes,
+            normals,
+            normals_stride_bytes,
+            out_target,
+        )
+    }
 }
 
 /// `sie_context_prepare_target` for `double` points and normals (strides as in
@@ -106,7 +116,17 @@ pub unsafe extern "C" fn sie_context_prepare_target_d(
     out_target: *mut *mut sie_target,
 ) -> sie_status {
     // SAFETY: forwarded contract.
-    unsafe { prepare_target_from(ctx, xyz, count, stride_bytes, normals, normals_stride_bytes, out_target) }
+    unsafe {
+        prepare_target_from(
+            ctx,
+            xyz,
+            count,
+            stride_bytes,
+            normals,
+            normals_stride_bytes,
+            out_target,
+        )
+    }
 }
 
 /// Estimates every target normal not estimated yet (point-to-plane without given normals) on

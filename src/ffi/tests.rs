@@ -949,7 +949,10 @@ fn prepared_target_arguments_are_checked_and_outputs_untouched() {
             sie_status::TooFewPoints
         );
         assert_eq!(transform, [7.0; 16]);
-        assert_eq!(sie_target_estimate_normals(target, 1025), sie_status::InvalidArgument);
+        assert_eq!(
+            sie_target_estimate_normals(target, 1025),
+            sie_status::InvalidArgument
+        );
         sie_target_free(target);
     }
 }

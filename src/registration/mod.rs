@@ -15,8 +15,8 @@ use nalgebra::Matrix4;
 
 use crate::cost::CostFunction;
 use crate::noise::{NoiseModel, NoiseScales};
-use crate::sie::{HistogramModel, SieOptions};
 pub use crate::sie::estimate::{InlierEstimate, MIN_ESTIMATE_ROWS, estimate_inliers};
+use crate::sie::{HistogramModel, SieOptions};
 
 pub use crate::error::Error;
 pub use crate::geometry::Point;
@@ -271,7 +271,6 @@ pub struct SearchReport {
     /// nats, 0 when nothing stands out from chance). 0 when no search ran.
     pub significance: f64,
 }
-
 
 pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
 pub use target::{PrepareOptions, PreparedTarget};

@@ -6,10 +6,12 @@ use std::time::Instant;
 use nalgebra::Matrix4;
 use rand::SeedableRng;
 
-use super::{Metric, RegistrationConfig};
-use crate::geometry::{Point, Solve, length, point_to_plane_step, splitmix64, transform_point, weighted_rigid_fit};
-use crate::noise::combine;
 use super::target::{NO_MATCH, PreparedTarget, sort_along_curve};
+use super::{Metric, RegistrationConfig};
+use crate::geometry::{
+    Point, Solve, length, point_to_plane_step, splitmix64, transform_point, weighted_rigid_fit,
+};
+use crate::noise::combine;
 use crate::parallel::Workers;
 
 /// Residual rows of one iteration.

@@ -149,7 +149,8 @@ impl PreparedTarget {
         let started = Instant::now();
         let mut order: Vec<u32> = (0..points.len() as u32).collect();
         sort_along_curve(points, &mut order);
-        let in_order = |values: &[Point]| -> Vec<Point> { order.iter().map(|&i| values[i as usize]).collect() };
+        let in_order =
+            |values: &[Point]| -> Vec<Point> { order.iter().map(|&i| values[i as usize]).collect() };
         let sorted = in_order(points);
         let index = NearestNeighbours::new(&sorted).map_err(Error::InvalidArgument)?;
         let index_seconds = started.elapsed().as_secs_f64();
@@ -305,9 +306,9 @@ impl PreparedTarget {
         match &self.normals {
             TargetNormals::Given { normals, .. } => normals[t],
             TargetNormals::Estimated(cell) => match cell.get() {
-                Some(estimated) if estimated.known[t].load(Ordering::Acquire) => {
-                    estimated.values[t].each_ref().map(|c| f64::from_bits(c.load(Ordering::Relaxed)))
-                }
+                Some(estimated) if estimated.known[t].load(Ordering::Acquire) => estimated.values[t]
+                    .each_ref()
+                    .map(|c| f64::from_bits(c.load(Ordering::Relaxed))),
                 _ => [0.0; 3],
             },
         }
@@ -402,7 +403,11 @@ mod tests {
         let estimated = (0..n as usize).filter(|&t| eager.normal(t) != [0.0; 3]).count();
         assert!(estimated > n as usize * 9 / 10, "{estimated} of {n}");
         for t in 0..n as usize {
-            assert_eq!(lazy.normal(t).map(f64::to_bits), eager.normal(t).map(f64::to_bits), "target {t}");
+            assert_eq!(
+                lazy.normal(t).map(f64::to_bits),
+                eager.normal(t).map(f64::to_bits),
+                "target {t}"
+            );
         }
     }
 
@@ -410,9 +415,15 @@ mod tests {
     fn bad_targets_are_refused_with_a_reason() {
         let options = PrepareOptions::default();
         let two = [[0.0; 3], [1.0, 0.0, 0.0]];
-        assert!(matches!(PreparedTarget::new(&two, None, &options), Err(Error::TooFewPoints(_))));
+        assert!(matches!(
+            PreparedTarget::new(&two, None, &options),
+            Err(Error::TooFewPoints(_))
+        ));
         let nan = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [f64::NAN, 0.0, 0.0]];
-        assert!(matches!(PreparedTarget::new(&nan, None, &options), Err(Error::NonFinite(_))));
+        assert!(matches!(
+            PreparedTarget::new(&nan, None, &options),
+            Err(Error::NonFinite(_))
+        ));
         let skipping = PrepareOptions {
             skip_non_finite: true,
             ..options.clone()
@@ -420,7 +431,9 @@ mod tests {
         let prepared = PreparedTarget::new(&nan, None, &skipping).unwrap();
         assert_eq!((prepared.len(), prepared.indexed_len()), (4, 3));
         assert_eq!(prepared.kept(), Some(&[0, 1, 2][..]));
-        let err = PreparedTarget::new(&nan[..3], Some(&two), &options).err().unwrap();
+        let err = PreparedTarget::new(&nan[..3], Some(&two), &options)
+            .err()
+            .unwrap();
         assert!(err.to_string().contains("3 points but 2 normals"), "{err}");
         let few_neighbours = PrepareOptions {
             normal_neighbours: 2,
