@@ -170,22 +170,30 @@ pub struct Solve {
 /// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
 /// `None` when the weights sum to zero.
 pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
+    weighted_rigid_fit_by(pairs.len(), |i| pairs[i], weights)
+}
+
+/// [`weighted_rigid_fit`] with pair i given by `pair(i)` for i < `count` (no slice of pairs
+/// needed: ICP reads them from its matches by index). The same arithmetic in the same order.
+pub fn weighted_rigid_fit_by(count: usize, pair: impl Fn(usize) -> (Point, Point), weights: &[f64]) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
     }
     let mut mean_a = Vector3::zeros();
     let mut mean_b = Vector3::zeros();
-    for ((a, b), &w) in pairs.iter().zip(weights) {
-        mean_a += w * vector(a);
-        mean_b += w * vector(b);
+    for (i, &w) in weights.iter().take(count).enumerate() {
+        let (a, b) = pair(i);
+        mean_a += w * vector(&a);
+        mean_b += w * vector(&b);
     }
     mean_a /= total;
     mean_b /= total;
     // Centred second pass: exact for far-from-origin (e.g. georeferenced) coordinates.
     let mut cross = Matrix3::zeros();
-    for ((a, b), &w) in pairs.iter().zip(weights) {
-        cross += w * (vector(a) - mean_a) * (vector(b) - mean_b).transpose();
+    for (i, &w) in weights.iter().take(count).enumerate() {
+        let (a, b) = pair(i);
+        cross += w * (vector(&a) - mean_a) * (vector(&b) - mean_b).transpose();
     }
     let svd = cross.svd(true, true);
     let (u, v_t) = (svd.u?, svd.v_t?);
@@ -214,19 +222,33 @@ pub fn point_to_plane_step(
     points: &[(Point, Point, Point)],
     weights: &[f64],
 ) -> Option<Solve> {
+    point_to_plane_step_by(current, points.len(), |i| points[i].0, |i| (points[i].1, points[i].2), weights)
+}
+
+/// [`point_to_plane_step`] with row i given by `moved(i)` = T·a_i and `plane(i)` = (q_i, n_i)
+/// for i < `count` (ICP reads them from its matches and the target by index instead of
+/// copying 72 bytes a row). The same arithmetic in the same order.
+pub fn point_to_plane_step_by(
+    current: &Matrix4<f64>,
+    count: usize,
+    moved: impl Fn(usize) -> Point,
+    plane: impl Fn(usize) -> (Point, Point),
+    weights: &[f64],
+) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
     }
+    let weights = &weights[..count.min(weights.len())];
     let mut centre = Vector3::zeros();
-    for ((p, _, _), &w) in points.iter().zip(weights) {
-        centre += w * vector(p);
+    for (i, &w) in weights.iter().enumerate() {
+        centre += w * vector(&moved(i));
     }
     centre /= total;
-    let spread = (points
+    let spread = (weights
         .iter()
-        .zip(weights)
-        .map(|((p, _, _), &w)| w * (vector(p) - centre).norm_squared())
+        .enumerate()
+        .map(|(i, &w)| w * (vector(&moved(i)) - centre).norm_squared())
         .sum::<f64>()
         / total)
         .sqrt();
@@ -234,13 +256,14 @@ pub fn point_to_plane_step(
     let length = if spread > 0.0 { spread } else { 1.0 };
     let mut hessian = Matrix6::zeros();
     let mut gradient = Vector6::zeros();
-    for ((p, q, n), &w) in points.iter().zip(weights) {
+    for (i, &w) in weights.iter().enumerate() {
         if w == 0.0 {
             continue;
         }
-        let normal = vector(n);
-        let arm = vector(p) - centre;
-        let residual = normal.dot(&(vector(p) - vector(q)));
+        let (p, (q, n)) = (moved(i), plane(i));
+        let normal = vector(&n);
+        let arm = vector(&p) - centre;
+        let residual = normal.dot(&(vector(&p) - vector(&q)));
         let rot = arm.cross(&normal) / length;
         let jac = Vector6::new(rot.x, rot.y, rot.z, normal.x, normal.y, normal.z);
         hessian += w * jac * jac.transpose();

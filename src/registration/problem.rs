@@ -9,7 +9,8 @@ use rand::SeedableRng;
 use super::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 use super::{Metric, RegistrationConfig};
 use crate::geometry::{
-    Point, Solve, length, point_to_plane_step, splitmix64, transform_point, weighted_rigid_fit,
+    Point, Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit,
+    weighted_rigid_fit_by,
 };
 use crate::noise::combine;
 use crate::parallel::Workers;
@@ -82,21 +83,27 @@ fn noise_scale(source_sigma: &Option<Vec<f64>>, target_sigma: &Option<Vec<f64>>,
     }
 }
 
-/// RMS over the rows of ‖(new − old)·a_i‖ / F_i, from each row's source point a_i and scale F_i.
-fn rms_displacement(sources: &[Point], scales: &[f64], old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-    if sources.is_empty() {
+/// RMS over the rows of ‖(new − old)·a_i‖ / F_i, from each row's source point a_i =
+/// `source(i)` (i < `count`) and scale F_i.
+fn rms_displacement(
+    count: usize,
+    source: impl Fn(usize) -> Point,
+    scales: &[f64],
+    old: &Matrix4<f64>,
+    new: &Matrix4<f64>,
+) -> f64 {
+    if count == 0 {
         return 0.0;
     }
     let difference = new - old;
-    let sum: f64 = sources
-        .iter()
+    let sum: f64 = (0..count)
         .zip(scales)
-        .map(|(a, f)| {
-            let d = transform_point(&difference, a);
+        .map(|(i, f)| {
+            let d = transform_point(&difference, &source(i));
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (f * f)
         })
         .sum();
-    (sum / sources.len() as f64).sqrt()
+    (sum / count as f64).sqrt()
 }
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
@@ -161,7 +168,7 @@ impl Problem for CorrespondenceProblem<'_> {
     }
 
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-        rms_displacement(self.source, &self.rows.scale, old, new)
+        rms_displacement(self.source.len(), |i| self.source[i], &self.rows.scale, old, new)
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
@@ -197,7 +204,7 @@ const NEVER_QUERIED: u32 = u32::MAX;
 /// 20 000: same errors at 10k/100k/1M points, 10k 0.072 → 0.051 s, 100k 0.69 → 0.48 s.
 const COARSE_POINTS: usize = 5_000;
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum Which {
     Sample,
     Coarse,
@@ -263,12 +270,12 @@ pub struct CloudProblem<'a> {
     /// at least half of this will most likely fail the skip test again next time.
     typical_margin: f64,
     rows: Rows,
-    /// Source point of each row, for the update size.
-    row_sources: Vec<Point>,
-    /// Per row (point-to-point): source point, matched target point.
-    pairs: Vec<(Point, Point)>,
-    /// Per row (point-to-plane): transformed source point, matched target point, its normal.
-    plane_terms: Vec<(Point, Point, Point)>,
+    /// Per row of the last solvable pass: its index in that pass, from which the solver and the
+    /// update size read the source point, the moved point, the matched target and its normal
+    /// (4 bytes a row instead of copies: 96 bytes a row for point-to-plane).
+    row_pass: Vec<u32>,
+    /// The pass `row_pass` indexes.
+    solved_pass: Which,
     /// Seconds this registration spent building the target (0 for a target prepared before).
     index_seconds: f64,
     normals_seconds: f64,
@@ -324,9 +331,8 @@ impl<'a> CloudProblem<'a> {
             moves: Vec::new(),
             typical_margin: f64::INFINITY,
             rows: Rows::default(),
-            row_sources: Vec::new(),
-            pairs: Vec::new(),
-            plane_terms: Vec::new(),
+            row_pass: Vec::new(),
+            solved_pass: Which::Sample,
             index_seconds,
             normals_seconds,
         })
@@ -372,7 +378,18 @@ impl<'a> CloudProblem<'a> {
         self.estimate_missing_normals(&pass);
         // The final evaluation (`all`) is not solved: no solver terms for it.
         self.fill_rows(&pass, !all);
+        if !all {
+            self.solved_pass = which;
+        }
         *self.pass_mut(which) = pass;
+    }
+
+    fn pass(&self, which: Which) -> &Pass {
+        match which {
+            Which::Sample => &self.sample,
+            Which::Coarse => &self.coarse,
+            Which::Everything => &self.everything,
+        }
     }
 
     fn pass_mut(&mut self, which: Which) -> &mut Pass {
@@ -437,25 +454,24 @@ impl<'a> CloudProblem<'a> {
     /// the matched pairs.
     fn fill_rows(&mut self, pass: &Pass, solver_terms: bool) {
         let target = self.target;
+        let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
         let rows = &mut self.rows;
         rows.clear();
         rows.considered = pass.order.len();
-        self.row_sources.clear();
-        self.pairs.clear();
-        self.plane_terms.clear();
+        self.row_pass.clear();
         for (k, m) in pass.matches.iter().enumerate() {
             if m.nearest == NO_MATCH {
                 continue;
             }
             let t = m.nearest as usize;
-            let normal = if plane { target.normal(t) } else { [0.0; 3] };
+            let normal = if plane { normals.get(t) } else { [0.0; 3] };
             // A target point without a normal (degenerate neighbourhood) gives no plane.
             if plane && normal == [0.0; 3] {
                 continue;
             }
             let (s, original_t) = (pass.order[k] as usize, target.order()[t] as usize);
-            let (a, q) = (pass.points[k], target.points()[t]);
+            let q = target.points()[t];
             let d = [m.point[0] - q[0], m.point[1] - q[1], m.point[2] - q[2]];
             rows.source.push(s as u32);
             rows.target.push(original_t as u32);
@@ -468,12 +484,7 @@ impl<'a> CloudProblem<'a> {
             rows.scale
                 .push(noise_scale(&self.source_sigma, &self.target_sigma, s, original_t));
             if solver_terms {
-                if plane {
-                    self.plane_terms.push((m.point, q, normal));
-                } else {
-                    self.pairs.push((a, q));
-                }
-                self.row_sources.push(a);
+                self.row_pass.push(k as u32);
             }
         }
     }
@@ -520,14 +531,33 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn solve(&mut self, transform: &Matrix4<f64>, weights: &[f64]) -> Option<Solve> {
+        let (pass, rows, target) = (self.pass(self.solved_pass), &self.row_pass, self.target);
+        let matched = |i: usize| pass.matches[rows[i] as usize].nearest as usize;
         match self.metric {
-            Metric::PointToPoint => weighted_rigid_fit(&self.pairs, weights),
-            Metric::PointToPlane => point_to_plane_step(transform, &self.plane_terms, weights),
+            Metric::PointToPoint => weighted_rigid_fit_by(
+                rows.len(),
+                |i| (pass.points[rows[i] as usize], target.points()[matched(i)]),
+                weights,
+            ),
+            Metric::PointToPlane => {
+                let normals = target.normals();
+                point_to_plane_step_by(
+                    transform,
+                    rows.len(),
+                    |i| pass.matches[rows[i] as usize].point,
+                    |i| {
+                        let t = matched(i);
+                        (target.points()[t], normals.get(t))
+                    },
+                    weights,
+                )
+            }
         }
     }
 
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-        rms_displacement(&self.row_sources, &self.rows.scale, old, new)
+        let (pass, rows) = (self.pass(self.solved_pass), &self.row_pass);
+        rms_displacement(rows.len(), |i| pass.points[rows[i] as usize], &self.rows.scale, old, new)
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {

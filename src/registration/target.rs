@@ -76,10 +76,32 @@ enum TargetNormals {
     Estimated(OnceLock<EstimatedNormals>),
 }
 
+/// A view of a target's normals (see `PreparedTarget::normals`).
+pub(crate) enum Normals<'a> {
+    /// Not set up (point-to-point so far): every normal reads `[0, 0, 0]`.
+    None,
+    Given(&'a [Point]),
+    Estimated(&'a EstimatedNormals),
+}
+
+impl Normals<'_> {
+    /// The normal of curve-order target `t` (`[0, 0, 0]`: none, or not estimated yet).
+    pub(crate) fn get(&self, t: usize) -> Point {
+        match self {
+            Normals::None => [0.0; 3],
+            Normals::Given(normals) => normals[t],
+            Normals::Estimated(estimated) if estimated.known[t].load(Ordering::Acquire) => {
+                estimated.values[t].each_ref().map(|c| f64::from_bits(c.load(Ordering::Relaxed)))
+            }
+            Normals::Estimated(_) => [0.0; 3],
+        }
+    }
+}
+
 /// Normals filled as registrations reach their points. Components are stored as f64 bits in
 /// atomics so that concurrent registrations can fill them without locks; `known[t]` is set
 /// (release) after the three components, and read (acquire) before them.
-struct EstimatedNormals {
+pub(crate) struct EstimatedNormals {
     scale: NormalScale,
     values: Vec<[AtomicU64; 3]>,
     known: Vec<AtomicBool>,
@@ -302,14 +324,18 @@ impl PreparedTarget {
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not
     /// estimated yet, or point-to-point).
+    #[cfg(test)]
     pub(crate) fn normal(&self, t: usize) -> Point {
+        self.normals().get(t)
+    }
+
+    /// The normals as they are now, for many look-ups.
+    pub(crate) fn normals(&self) -> Normals<'_> {
         match &self.normals {
-            TargetNormals::Given { normals, .. } => normals[t],
+            TargetNormals::Given { normals, .. } => Normals::Given(normals),
             TargetNormals::Estimated(cell) => match cell.get() {
-                Some(estimated) if estimated.known[t].load(Ordering::Acquire) => estimated.values[t]
-                    .each_ref()
-                    .map(|c| f64::from_bits(c.load(Ordering::Relaxed))),
-                _ => [0.0; 3],
+                Some(estimated) => Normals::Estimated(estimated),
+                None => Normals::None,
             },
         }
     }
