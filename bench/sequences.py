@@ -127,7 +127,7 @@ def kiss_icp_odometry(frames, poses, voxel, mode, threads, max_dist):
         odometry.register_frame(frame, np.zeros(len(frame)))
         # KISS-ICP starts at the identity; express its poses from the true first pose.
         estimates.append(poses[0] @ odometry.last_pose)
-    return "pipeline", estimates, f"voxel_size={voxel:g}, its own map and adaptive threshold"
+    return "pipeline", estimates, f"voxel_size={voxel:g}; its own map and adaptive threshold"
 
 
 def main():

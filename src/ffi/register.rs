@@ -151,10 +151,10 @@ unsafe fn register_clouds_from<T: Coordinate>(
                 &context.cancel_requested,
                 out_t_target_source,
                 |config, hooks| {
-                    crate::registration::register_clouds(
+                    crate::registration::register_owned_clouds(
                         &source_points,
-                        &target_points,
-                        normals.as_deref(),
+                        target_points,
+                        normals,
                         init.as_ref(),
                         config,
                         hooks,

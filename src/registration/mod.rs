@@ -273,6 +273,7 @@ pub struct SearchReport {
 }
 
 pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
+pub(crate) use pipeline::register_owned_clouds;
 pub use target::{PrepareOptions, PreparedTarget};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.

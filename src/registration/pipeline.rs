@@ -192,6 +192,38 @@ pub fn register_clouds(
 ) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
+    let prepared = prepare_for(source, target, target_normals, config)?;
+    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// `register_clouds` on clouds the caller hands over (the C ABI's copies): the target's copy
+/// is dropped once it is prepared (240 MB at 10 M points). The same result, bit for bit.
+pub(crate) fn register_owned_clouds(
+    source: &[Point],
+    target: Vec<Point>,
+    target_normals: Option<Vec<Point>>,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
+    let started = Instant::now();
+    config.validate()?;
+    let prepared = prepare_for(source, &target, target_normals.as_deref(), config)?;
+    drop((target, target_normals));
+    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// `register_clouds`' checks, in its order, then the target prepared with the config's options.
+fn prepare_for(
+    source: &[Point],
+    target: &[Point],
+    target_normals: Option<&[Point]>,
+    config: &RegistrationConfig,
+) -> Result<PreparedTarget, Error> {
     if let Some(normals) = target_normals {
         if normals.len() != target.len() {
             return Err(Error::InvalidArgument(format!(
@@ -206,10 +238,7 @@ pub fn register_clouds(
         require_points("target", target.len(), 3)?;
         require_finite("source", source)?;
     }
-    let prepared = PreparedTarget::new(target, target_normals, &PrepareOptions::from_config(config))?;
-    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    PreparedTarget::new(target, target_normals, &PrepareOptions::from_config(config))
 }
 
 /// ICP of `source` onto a prepared target: `register_clouds` without building the target's
