@@ -58,14 +58,16 @@ fn main() {
     // The target prepared first (the same result as register_clouds, bit for bit), so that the
     // peak of preparing it shows apart from the registration's.
     let start = Instant::now();
-    let target = PreparedTarget::new(&scene.target, None, &PrepareOptions::from_config(&config)).expect("target");
+    let target =
+        PreparedTarget::new(&scene.target, None, &PrepareOptions::from_config(&config)).expect("target");
     println!(
         "target prepared (kd-tree) in {:.1} s, peak RSS {:.0} MiB, current {:.0} MiB",
         start.elapsed().as_secs_f64(),
         peak_rss_mib(),
         current_rss_mib()
     );
-    let result = register_clouds_to(&scene.source, &target, None, &config, Hooks::default()).expect("registration");
+    let result =
+        register_clouds_to(&scene.source, &target, None, &config, Hooks::default()).expect("registration");
     let seconds = start.elapsed().as_secs_f64();
     let error = scene.t_target_source.try_inverse().unwrap() * result.transform;
     println!(

@@ -175,7 +175,11 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
 
 /// [`weighted_rigid_fit`] with pair i given by `pair(i)` for i < `count` (no slice of pairs
 /// needed: ICP reads them from its matches by index). The same arithmetic in the same order.
-pub fn weighted_rigid_fit_by(count: usize, pair: impl Fn(usize) -> (Point, Point), weights: &[f64]) -> Option<Solve> {
+pub fn weighted_rigid_fit_by(
+    count: usize,
+    pair: impl Fn(usize) -> (Point, Point),
+    weights: &[f64],
+) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
@@ -222,7 +226,13 @@ pub fn point_to_plane_step(
     points: &[(Point, Point, Point)],
     weights: &[f64],
 ) -> Option<Solve> {
-    point_to_plane_step_by(current, points.len(), |i| points[i].0, |i| (points[i].1, points[i].2), weights)
+    point_to_plane_step_by(
+        current,
+        points.len(),
+        |i| points[i].0,
+        |i| (points[i].1, points[i].2),
+        weights,
+    )
 }
 
 /// [`point_to_plane_step`] with row i given by `moved(i)` = T·a_i and `plane(i)` = (q_i, n_i)

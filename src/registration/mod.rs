@@ -272,8 +272,8 @@ pub struct SearchReport {
     pub significance: f64,
 }
 
-pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
 pub(crate) use pipeline::register_owned_clouds;
+pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
 pub use target::{PrepareOptions, PreparedTarget};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.

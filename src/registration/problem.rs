@@ -557,7 +557,13 @@ impl Problem for CloudProblem<'_> {
 
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
         let (pass, rows) = (self.pass(self.solved_pass), &self.row_pass);
-        rms_displacement(rows.len(), |i| pass.points[rows[i] as usize], &self.rows.scale, old, new)
+        rms_displacement(
+            rows.len(),
+            |i| pass.points[rows[i] as usize],
+            &self.rows.scale,
+            old,
+            new,
+        )
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {

@@ -90,9 +90,10 @@ impl Normals<'_> {
         match self {
             Normals::None => [0.0; 3],
             Normals::Given(normals) => normals[t],
-            Normals::Estimated(estimated) if estimated.known[t].load(Ordering::Acquire) => {
-                estimated.values[t].each_ref().map(|c| f64::from_bits(c.load(Ordering::Relaxed)))
-            }
+            Normals::Estimated(estimated) if estimated.known[t].load(Ordering::Acquire) => estimated.values
+                [t]
+                .each_ref()
+                .map(|c| f64::from_bits(c.load(Ordering::Relaxed))),
             Normals::Estimated(_) => [0.0; 3],
         }
     }
