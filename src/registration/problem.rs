@@ -185,9 +185,10 @@ impl Problem for CorrespondenceProblem<'_> {
 /// is at least d₂ − δ away and the old nearest at most d₁ + δ, so it is still the nearest when
 /// 2δ < d₂ − d₁. Late ICP iterations move points by far less than the gap, so most queries
 /// become one 3×4 product.
+/// The moved point T·p itself is not kept (24 bytes a point): rows and the solver recompute it
+/// from the pass's copy of p, bit for bit.
 #[derive(Clone, Copy)]
 struct Match {
-    point: Point,
     /// Nearest target at the last query.
     nearest: u32,
     /// `history` index of the transform of the last query (NEVER_QUERIED: none).
@@ -235,7 +236,6 @@ impl Pass {
 
 impl Match {
     const EMPTY: Match = Match {
-        point: [0.0; 3],
         nearest: NO_MATCH,
         queried_at: NEVER_QUERIED,
         margin: 0.0,
@@ -274,8 +274,9 @@ pub struct CloudProblem<'a> {
     /// update size read the source point, the moved point, the matched target and its normal
     /// (4 bytes a row instead of copies: 96 bytes a row for point-to-plane).
     row_pass: Vec<u32>,
-    /// The pass `row_pass` indexes.
+    /// The pass `row_pass` indexes, and the transform it was matched at.
     solved_pass: Which,
+    linearised: Matrix4<f64>,
     /// Seconds this registration spent building the target (0 for a target prepared before).
     index_seconds: f64,
     normals_seconds: f64,
@@ -333,6 +334,7 @@ impl<'a> CloudProblem<'a> {
             rows: Rows::default(),
             row_pass: Vec::new(),
             solved_pass: Which::Sample,
+            linearised: Matrix4::identity(),
             index_seconds,
             normals_seconds,
         })
@@ -377,9 +379,10 @@ impl<'a> CloudProblem<'a> {
         }
         self.estimate_missing_normals(&pass);
         // The final evaluation (`all`) is not solved: no solver terms for it.
-        self.fill_rows(&pass, !all);
+        self.fill_rows(&pass, transform, !all);
         if !all {
             self.solved_pass = which;
+            self.linearised = *transform;
         }
         *self.pass_mut(which) = pass;
     }
@@ -418,11 +421,11 @@ impl<'a> CloudProblem<'a> {
             .for_each_chunk_mut(&mut pass.matches, |start, chunk| {
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     let a = &points[start + k];
-                    let point = transform_point(transform, a);
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
                             < f64::from(slot.margin);
                     if !unchanged {
+                        let point = transform_point(transform, a);
                         slot.queried_at = generation;
                         // Early on, updates move points by more than the typical gap, so a
                         // cached margin would not be used: the cheaper nearest-only query
@@ -445,14 +448,13 @@ impl<'a> CloudProblem<'a> {
                             };
                         }
                     }
-                    slot.point = point;
                 }
             });
     }
 
     /// Rows (in the caller's indices) and, with `solver_terms`, the solver's per-row terms of
     /// the matched pairs.
-    fn fill_rows(&mut self, pass: &Pass, solver_terms: bool) {
+    fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, solver_terms: bool) {
         let target = self.target;
         let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
@@ -472,7 +474,8 @@ impl<'a> CloudProblem<'a> {
             }
             let (s, original_t) = (pass.order[k] as usize, target.order()[t] as usize);
             let q = target.points()[t];
-            let d = [m.point[0] - q[0], m.point[1] - q[1], m.point[2] - q[2]];
+            let moved = transform_point(transform, &pass.points[k]);
+            let d = [moved[0] - q[0], moved[1] - q[1], moved[2] - q[2]];
             rows.source.push(s as u32);
             rows.target.push(original_t as u32);
             if plane {
@@ -544,7 +547,7 @@ impl Problem for CloudProblem<'_> {
                 point_to_plane_step_by(
                     transform,
                     rows.len(),
-                    |i| pass.matches[rows[i] as usize].point,
+                    |i| transform_point(&self.linearised, &pass.points[rows[i] as usize]),
                     |i| {
                         let t = matched(i);
                         (target.points()[t], normals.get(t))
