@@ -73,7 +73,7 @@ enum TargetNormals {
     /// The caller's normals in curve order; `[0, 0, 0]` = no normal. `any`: some is non-zero.
     Given { normals: Vec<Point>, any: bool },
     /// Estimated by k-NN PCA, set up by the first point-to-plane registration.
-    Estimated(OnceLock<EstimatedNormals>),
+    Estimated(Box<OnceLock<EstimatedNormals>>),
 }
 
 /// A view of a target's normals (see `PreparedTarget::normals`).
@@ -183,7 +183,7 @@ impl PreparedTarget {
                 let any = normals.iter().any(|n| *n != [0.0; 3]);
                 TargetNormals::Given { normals, any }
             }
-            None => TargetNormals::Estimated(OnceLock::new()),
+            None => TargetNormals::Estimated(Box::default()),
         };
         Ok(PreparedTarget {
             points: sorted,
