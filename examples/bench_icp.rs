@@ -141,12 +141,18 @@ mod run {
                     threads,
                     repeats,
                     floor,
+                    "",
                 );
                 // The same registration onto a target prepared (kd-tree and every normal) before
                 // the clock starts: what each call costs when a sequence reuses its target.
+                let started = Instant::now();
                 let prepared = PreparedTarget::new(&target, None, &PrepareOptions::from_config(&config))
                     .expect("prepared target");
-                prepared.estimate_all_normals(threads).expect("normals");
+                let index_seconds = started.elapsed().as_secs_f64();
+                // Every normal up front (a prepared target otherwise estimates the ones its first
+                // registration reaches, inside that call: the `normals` of the row above).
+                let all_normals = prepared.estimate_all_normals(threads).expect("normals");
+                let prepare_note = format!(" prepare={index_seconds:.4} all_normals={all_normals:.4}");
                 let mut runs: Vec<RegistrationResult> = (0..repeats)
                     .map(|_| {
                         register_clouds_to(&source, &prepared, None, &config, Hooks::default())
@@ -162,12 +168,14 @@ mod run {
                     threads,
                     repeats,
                     floor,
+                    &prepare_note,
                 );
             }
         }
     }
 
     /// One CSV row for the median of `runs` (sorted by total time).
+    #[allow(clippy::too_many_arguments)]
     fn print_row(
         method: &str,
         runs: &[RegistrationResult],
@@ -176,6 +184,7 @@ mod run {
         threads: usize,
         repeats: usize,
         floor: f64,
+        extra_note: &str,
     ) {
         let median = &runs[runs.len() / 2];
         let error = truth.try_inverse().expect("invertible ground truth") * median.transform;
@@ -187,7 +196,7 @@ mod run {
         println!(
             "sie,{method},{points},{threads},{:.6},{},{:.6},{:.6},{},\
                      repeats={repeats} index={:.4} normals={:.4} matching={:.4} weighting={:.4} solve={:.4} \
-                     evaluation={:.4} floor={floor:.6}",
+                     evaluation={:.4} floor={floor:.6}{extra_note}",
             t.total,
             median.iterations,
             rotation_angle(&rotation_part(&error)).to_degrees(),
