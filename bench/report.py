@@ -4,7 +4,8 @@ of each library's time to sie's at the same size and thread count, then sie's st
 
     python3 bench/report.py FILE.csv [FILE.csv ...]
 
-sie rows come from bench_icp (stage times in `note`); compare_pcl also writes sie rows, which
+sie rows come from bench_icp (stage times and the floor, one NN pass + one 6x6 solve, in `note`;
+a second row per size registers onto a target prepared beforehand); compare_pcl also writes sie rows, which
 are dropped here in favour of bench_icp's so every sie number comes from one program.
 """
 import csv
@@ -40,7 +41,8 @@ def fmt_seconds(s):
 
 def main(paths):
     rows = read_rows(paths)
-    sie = {(int(r["points"]), int(r["threads"])): float(r["seconds"]) for r in rows if r["library"] == "sie"}
+    sie = {(int(r["points"]), int(r["threads"])): float(r["seconds"])
+           for r in rows if r["library"] == "sie" and r["method"] == "point-to-plane"}
     by_size = defaultdict(list)
     for r in rows:
         by_size[int(r["points"])].append(r)
@@ -60,17 +62,22 @@ def main(paths):
     print()
     print("sie's stages (seconds; the SIE fit is `weighting`: histogram, σ, k, P(I|r) and weights):")
     print()
-    print("| points | threads | total | kd-tree | normals | matching | SIE fit | solve | final evaluation "
-          "| iterations | SIE fit / iteration |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| points | target | threads | total | kd-tree | normals | matching | SIE fit | solve | final evaluation "
+          "| iterations | SIE fit / iteration | iteration (ms) | floor (ms) | iteration / floor |")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if r["library"] != "sie":
             continue
         s = stages(r["note"])
         loop = s["matching"] + s["weighting"] + s["solve"]
-        print(f"| {r['points']} | {r['threads']} | {fmt_seconds(float(r['seconds']))} | {s['index']:.3f} "
+        per_iteration = loop / max(int(r["iterations"]), 1)
+        floor = s.get("floor")
+        floor_cells = (f"| {1e3 * floor:.2f} | {per_iteration / floor:.1f} " if floor else "| – | – ")
+        target = "prepared" if "prepared" in r["method"] else "built"
+        print(f"| {r['points']} | {target} | {r['threads']} | {fmt_seconds(float(r['seconds']))} | {s['index']:.3f} "
               f"| {s['normals']:.3f} | {s['matching']:.3f} | {s['weighting']:.3f} | {s['solve']:.3f} "
-              f"| {s['evaluation']:.3f} | {r['iterations']} | {100 * s['weighting'] / loop:.0f} % |")
+              f"| {s['evaluation']:.3f} | {r['iterations']} | {100 * s['weighting'] / loop:.0f} % "
+              f"| {1e3 * per_iteration:.2f} {floor_cells}|")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,9 @@
  * - A cancelled registration (cancel() or a progress callback returning false) is not an error:
  *   align() returns the transform reached and summary().stop_reason is StopReason::Cancelled.
  *
+ * - sie::Target (Context::prepare_target) holds a target's kd-tree and normals for many align()
+ *   calls; copies share it, and Contexts on several threads may align onto it at once.
+ *
  * Thread safety is the C library's: a Context is used by one thread at a time; distinct
  * Contexts are independent.
  */
@@ -229,6 +232,39 @@ using NoiseFunction = std::function<void(Cloud cloud, const double *xyz, std::si
  */
 using ProgressFunction = std::function<bool(const TraceEntry &entry)>;
 
+/**
+ * A prepared target cloud (sie_target): kd-tree and normals built once, for many registrations
+ * (odometry onto the previous frame, scan-to-map). Made by Context::prepare_target, used by
+ * Context::align(source, target). Copies share one immutable target (shared ownership; it is
+ * freed with the last copy), and any number of Contexts on any threads may align onto it at the
+ * same time. A default-constructed Target is empty (aligning onto it throws NullArgument).
+ */
+class Target {
+  public:
+    Target() noexcept = default;
+
+    explicit operator bool() const noexcept { return static_cast<bool>(target_); }
+    /** Points the target was made from (0 when empty). */
+    std::size_t size() const noexcept { return sie_target_point_count(target_.get()); }
+    /** Estimates all normals not estimated yet, on `threads` threads (0 = one per core), so
+     * that no later align() pays for them (e.g. a map prepared in the background). */
+    void estimate_normals(std::uint32_t threads = 0) const {
+        const sie_status status = sie_target_estimate_normals(target_.get(), threads);
+        if (status != SIE_STATUS_OK) {
+            throw Error(static_cast<Status>(status), target_ ? "threads must be <= 1024" : "the target is empty");
+        }
+    }
+    const sie_target *get() const noexcept { return target_.get(); }
+
+  private:
+    friend class Context;
+    explicit Target(sie_target *target) : target_(target, [](const sie_target *t) {
+        sie_target_free(const_cast<sie_target *>(t));
+    }) {}
+
+    std::shared_ptr<const sie_target> target_;
+};
+
 class Context {
   public:
     /** A context with the default configuration. Throws VersionMismatch for a stale library. */
@@ -313,8 +349,11 @@ class Context {
     }
     Context &set_normal_neighbours(std::uint32_t neighbours) {
         check(sie_context_set_normal_neighbours(get(), neighbours));
+        normal_neighbours_ = neighbours;
         return *this;
     }
+    /** The normal_neighbours setting (a Target prepared with another count refuses this context). */
+    std::uint32_t normal_neighbours() const noexcept { return normal_neighbours_; }
     Context &set_threads(std::uint32_t threads) {
         check(sie_context_set_threads(get(), threads));
         return *this;
@@ -394,6 +433,36 @@ class Context {
         Transform out{};
         run(sie_context_register_d(get(), source.xyz, source.count, source.stride_bytes, target.xyz, target.count,
                                    target.stride_bytes, init.data(), out.data()));
+        return out;
+    }
+
+    /** Prepares `target` for many align(source, target) calls, with this context's
+     * normal_neighbours and skip_non_finite settings. The points are copied. */
+    Target prepare_target(Points target) const { return prepare(target, Points{}); }
+    Target prepare_target(PointsD target) const { return prepare(target, PointsD{}); }
+    /** With one unit normal per target point (0 0 0 = none), used by point-to-plane. */
+    Target prepare_target(Points target, Points normals) const {
+        check_normal_count(target, normals);
+        return prepare(target, normals);
+    }
+    Target prepare_target(PointsD target, PointsD normals) const {
+        check_normal_count(target, normals);
+        return prepare(target, normals);
+    }
+
+    /** ICP of source onto a prepared target: the same result as align(source, target points),
+     * without rebuilding the target's kd-tree and normals. */
+    Transform align(Points source, const Target &target, const Transform &init = identity_transform()) {
+        Transform out{};
+        run(sie_context_register_to(get(), source.xyz, source.count, source.stride_bytes, target.get(), init.data(),
+                                    out.data()));
+        return out;
+    }
+
+    Transform align(PointsD source, const Target &target, const Transform &init = identity_transform()) {
+        Transform out{};
+        run(sie_context_register_to_d(get(), source.xyz, source.count, source.stride_bytes, target.get(),
+                                      init.data(), out.data()));
         return out;
     }
 
@@ -560,6 +629,27 @@ class Context {
         check(status);
     }
 
+    template <typename Scalar> static void check_normal_count(PointsView<Scalar> target, PointsView<Scalar> normals) {
+        if (normals.count != target.count) {
+            throw Error(Status::InvalidArgument, "normals has " + std::to_string(normals.count) + " entries for " +
+                                                     std::to_string(target.count) + " target points");
+        }
+    }
+
+    Target prepare(Points target, Points normals) const {
+        sie_target *out = nullptr;
+        check(sie_context_prepare_target(get(), target.xyz, target.count, target.stride_bytes, normals.xyz,
+                                         normals.stride_bytes, &out));
+        return Target(out);
+    }
+
+    Target prepare(PointsD target, PointsD normals) const {
+        sie_target *out = nullptr;
+        check(sie_context_prepare_target_d(get(), target.xyz, target.count, target.stride_bytes, normals.xyz,
+                                           normals.stride_bytes, &out));
+        return Target(out);
+    }
+
     static void check_same_count(std::size_t source_count, std::size_t target_count) {
         if (source_count != target_count) {
             throw Error(Status::InvalidArgument, "correspondences need as many source points (" +
@@ -581,6 +671,7 @@ class Context {
     std::unique_ptr<Holder<NoiseFunction>> noise_;
     std::unique_ptr<Holder<ProgressFunction>> progress_;
     std::unique_ptr<sie_context, Free> context_;
+    std::uint32_t normal_neighbours_ = 10; // the library's default
 };
 
 } // namespace sie

@@ -167,6 +167,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     using typename Base::Matrix4;
     using typename Base::PointCloudSource;
     using typename Base::PointCloudTarget;
+    using typename Base::PointCloudTargetConstPtr;
     using Ptr = pcl::shared_ptr<PclRegistration<PointSource, PointTarget, Scalar>>;
     using ConstPtr = pcl::shared_ptr<const PclRegistration<PointSource, PointTarget, Scalar>>;
 
@@ -188,6 +189,19 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     }
     /** As PCL's DefaultConvergenceCriteria: reaching the iteration cap counts as failure. */
     void setFailureAfterMaximumIterations(bool failure) noexcept { failure_after_max_iterations_ = failure; }
+
+    /** As PCL's: a new target. The prepared target (kd-tree, normals) is rebuilt on the next
+     * align(); until then it is kept across setInputSource() and align() calls, as
+     * setSearchMethodTarget(tree, true) keeps PCL's tree. Call it again after changing the
+     * target cloud in place. */
+    void setInputTarget(const PointCloudTargetConstPtr &cloud) override {
+        Base::setInputTarget(cloud);
+        prepared_ = Prepared{};
+    }
+
+    /** The prepared target the next align() uses (empty before the first align() after
+     * setInputTarget()); a copy may be shared with other Contexts (sie::Context::align). */
+    const Target &preparedTarget() const noexcept { return prepared_.target; }
 
     /** sie's summary of the last align() (stop_reason, sigma, inlier_fraction, ...). */
     const Summary &summary() const noexcept { return summary_; }
@@ -250,7 +264,8 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         context_.set_max_iterations(static_cast<std::uint32_t>(this->max_iterations_));
         apply_tolerances();
         const bool normals = use_target_normals();
-        context_.set_skip_non_finite(!source.is_dense || !target_->is_dense || (normals && !finite_normals()));
+        prepare_target(normals);
+        context_.set_skip_non_finite(!source.is_dense || prepared_.skip_non_finite);
 
         // Progress: the visualiser, PCL's relative-MSE criterion and the last increment.
         const double fitness_epsilon = this->euclidean_fitness_epsilon_;
@@ -284,14 +299,14 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
 
         const Eigen::Matrix4d guess_d = guess.template cast<double>();
         metric_used_ = metric_fixed_ ? metric_ : Metric::PointToPlane;
-        Eigen::Matrix4d transform = run(source, guess_d, metric_used_, normals);
+        Eigen::Matrix4d transform = run(source, guess_d, metric_used_);
         if (!metric_fixed_ && summary_.stop_reason == StopReason::Degenerate) {
             // Point-to-plane has no unique solution (e.g. all normals from one plane fit):
             // what pcl::IterativeClosestPoint would do, point-to-point from the same guess.
             metric_used_ = Metric::PointToPoint;
             previous_mse = -1.0;
             previous = current = guess_d;
-            transform = run(source, guess_d, metric_used_, false);
+            transform = run(source, guess_d, metric_used_);
         }
         const StopReason stop = summary_.stop_reason;
         converged_ = stop == StopReason::Converged ||
@@ -303,18 +318,39 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         transformation_ = (current * previous.inverse()).cast<Scalar>();
     }
 
-    Eigen::Matrix4d run(const PointCloudSource &source, const Eigen::Matrix4d &guess, Metric metric,
-                        bool with_normals) {
-        context_.set_metric(metric);
-        Eigen::Matrix4d transform;
-        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
-            transform = with_normals && metric == Metric::PointToPlane
-                            ? align_with_normals(context_, source, *target_, guess)
-                            : sie::align(context_, source, *target_, guess);
-        } else {
-            (void)with_normals;
-            transform = sie::align(context_, source, *target_, guess);
+    // The target's kd-tree and normals, built once per setInputTarget() (and again only when
+    // the settings it depends on change). Point-to-point ignores given normals, so one
+    // prepared target serves the point-to-point rerun too.
+    struct Prepared {
+        Target target;
+        bool with_normals = false;
+        bool skip_non_finite = false;
+        std::uint32_t normal_neighbours = 0;
+    };
+
+    void prepare_target(bool with_normals) {
+        if (prepared_.target && prepared_.with_normals == with_normals &&
+            prepared_.normal_neighbours == context_.normal_neighbours()) {
+            return;
         }
+        Prepared prepared;
+        prepared.with_normals = with_normals;
+        prepared.skip_non_finite = !target_->is_dense || (with_normals && !finite_normals());
+        prepared.normal_neighbours = context_.normal_neighbours();
+        context_.set_skip_non_finite(prepared.skip_non_finite);
+        if constexpr (pcl::traits::has_normal_v<PointTarget>) {
+            prepared.target = with_normals ? context_.prepare_target(xyz_view(*target_), normals_view(*target_))
+                                           : context_.prepare_target(xyz_view(*target_));
+        } else {
+            prepared.target = context_.prepare_target(xyz_view(*target_));
+        }
+        prepared_ = std::move(prepared);
+    }
+
+    Eigen::Matrix4d run(const PointCloudSource &source, const Eigen::Matrix4d &guess, Metric metric) {
+        context_.set_metric(metric);
+        const Eigen::Matrix4d transform =
+            to_eigen(context_.align(xyz_view(source), prepared_.target, to_transform(guess)));
         summary_ = context_.summary();
         return transform;
     }
@@ -404,6 +440,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     bool tolerances_set_ = false;
     Summary summary_{};
     std::optional<Error> last_error_;
+    Prepared prepared_;
 
   public:
     PCL_MAKE_ALIGNED_OPERATOR_NEW

@@ -177,6 +177,20 @@ int main() {
     CHECK((moved - expected).norm() < 2e-3f);
     CHECK((aligned_normals.points[10].getNormalVector3fMap() - target_normals.points[10].getNormalVector3fMap()).norm() <
           2e-3f);
+    // The prepared target is kept across setInputSource() and align() while the target is
+    // unchanged (as setSearchMethodTarget(tree, true) keeps PCL's tree), and results are those
+    // of aligning onto the points.
+    const sie_target *prepared = registration.preparedTarget().get();
+    CHECK(prepared != nullptr);
+    registration.setInputSource(pcl::PointCloud<pcl::PointNormal>::ConstPtr(
+        new pcl::PointCloud<pcl::PointNormal>(planes<pcl::PointNormal>(truth.inverse()))));
+    registration.align(aligned_normals);
+    CHECK(registration.preparedTarget().get() == prepared);
+    CHECK(registration.getFinalTransformation() == final_transformation);
+    registration.setInputTarget(registration.getInputTarget());
+    CHECK(!registration.preparedTarget());
+    registration.align(aligned_normals);
+    CHECK(registration.preparedTarget() && registration.getFinalTransformation() == final_transformation);
     CHECK(registration.getClassName() == "sie::PclRegistration");
     pcl::PointCloud<pcl::PointXYZ> aligned;
 

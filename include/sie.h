@@ -320,6 +320,20 @@ typedef uint32_t sie_cloud;
 typedef struct sie_context sie_context;
 
 /**
+ * A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
+ * (given, or estimated by the registrations that reach them and kept for later ones).
+ * Create with `sie_context_prepare_target`, register onto it with `sie_context_register_to`,
+ * free with `sie_target_free`.
+ *
+ * Immutable once created: any number of contexts on any threads may register onto one target
+ * at the same time (`const sie_target*`), and results are the same bit for bit as
+ * `sie_context_register` on the same clouds, whatever else runs on the target. It holds a copy
+ * of the points, so the caller's arrays may be freed after creation. Free it only after every
+ * registration using it has returned.
+ */
+typedef struct sie_target sie_target;
+
+/**
  * Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
  * point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
  * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
@@ -353,7 +367,8 @@ typedef struct sie_trace_entry {
     double beta;
     double penalty;
     /**
-     * Mean inlier probability over this iteration's correspondences.
+     * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
+     * 0), over the source points this iteration matched, with this update's weights.
      */
     double inlier_fraction;
     /**
@@ -374,11 +389,18 @@ typedef struct sie_trace_entry {
      * True while beta is being annealed, false in the final round.
      */
     bool annealing;
+    /**
+     * T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
+     * viewer can move the source cloud with it every iteration.
+     */
+    double transform[16];
 } sie_trace_entry;
 
 /**
  * Progress callback: called after every iteration of a registration with that iteration's
- * trace entry (valid only during the call), synchronously on the registering thread. Return 0
+ * trace entry (valid only during the call; `entry->transform` is the transform the update
+ * reached, for a viewer that animates the registration), synchronously on the registering
+ * thread. Return 0
  * to continue; any other value cancels the registration, which then returns
  * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
  * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
@@ -850,6 +872,112 @@ sie_status sie_context_register_correspondences_d(struct sie_context *ctx,
                                                   double *out_T_target_source);
 
 /**
+ * Prepares a target cloud for `sie_context_register_to`: sorts it, builds its kd-tree, and
+ * keeps `normals` if given. `xyz`: `count` float x, y, z triples at `stride_bytes` (0 =
+ * packed), as the target of `sie_context_register`. `normals`: NULL (estimated from the
+ * context's `normal_neighbours` when point-to-plane first needs them) or `count` unit normals
+ * at `normals_stride_bytes`, with 0 0 0 for a point without one (as
+ * `sie_context_register_with_normals`).
+ *
+ * The context lends its settings (`normal_neighbours`, `skip_non_finite`, `skip_origin`; a later
+ * registration with another `normal_neighbours` is INVALID_ARGUMENT) and its last error; the
+ * target does not refer to it afterwards. On success `*out_target` receives a new target (free
+ * it with `sie_target_free`); on error it is not written. Errors: NULL_ARGUMENT,
+ * INVALID_ARGUMENT (stride, alignment, normal length), TOO_FEW_POINTS, NON_FINITE_INPUT,
+ * BUSY.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `xyz` is NULL or readable for `count` points at its
+ * stride; `normals` likewise; `out_target` is NULL or writable for one pointer.
+ */
+sie_status sie_context_prepare_target(struct sie_context *ctx,
+                                      const float *xyz,
+                                      size_t count,
+                                      size_t stride_bytes,
+                                      const float *normals,
+                                      size_t normals_stride_bytes,
+                                      struct sie_target **out_target);
+
+/**
+ * `sie_context_prepare_target` for `double` points and normals (strides as in
+ * `sie_context_register_d`).
+ *
+ * # Safety
+ * As `sie_context_prepare_target`.
+ */
+sie_status sie_context_prepare_target_d(struct sie_context *ctx,
+                                        const double *xyz,
+                                        size_t count,
+                                        size_t stride_bytes,
+                                        const double *normals,
+                                        size_t normals_stride_bytes,
+                                        struct sie_target **out_target);
+
+/**
+ * Estimates every target normal not estimated yet (point-to-plane without given normals) on
+ * `threads` threads (0 = one per core), so that no later registration pays for them: e.g.
+ * for a map prepared in the background. Without it, registrations estimate the normals they
+ * reach (less work when they reach only part of the target); results are the same either way.
+ * May run while other threads register onto the same target. Returns NULL_ARGUMENT for NULL,
+ * INVALID_ARGUMENT for more than 1024 threads, otherwise OK.
+ *
+ * # Safety
+ * `target` is NULL or a live target.
+ */
+sie_status sie_target_estimate_normals(const struct sie_target *target, uint32_t threads);
+
+/**
+ * Number of points the target was created from (skipped non-finite ones included); 0 for
+ * NULL.
+ *
+ * # Safety
+ * `target` is NULL or a live target.
+ */
+size_t sie_target_point_count(const struct sie_target *target);
+
+/**
+ * Frees a target. NULL is a no-op. No registration may be using it.
+ *
+ * # Safety
+ * `target` is NULL or a pointer from `sie_context_prepare_target[_d]` not yet freed.
+ */
+void sie_target_free(struct sie_target *target);
+
+/**
+ * `sie_context_register` onto a prepared target: the source cloud (float, strides as there)
+ * is registered onto `target` without rebuilding its kd-tree or re-estimating the normals
+ * earlier registrations estimated. Transform arguments, errors (NULL_ARGUMENT for a NULL
+ * target) and result storage as in `sie_context_register`; correspondences name the points
+ * the target was created from. The same result as `sie_context_register` with the target's
+ * arrays, bit for bit. Other contexts may register onto the same target at the same time.
+ *
+ * # Safety
+ * As `sie_context_register`; `target` is NULL or a live target.
+ */
+sie_status sie_context_register_to(struct sie_context *ctx,
+                                   const float *source_xyz,
+                                   size_t source_count,
+                                   size_t source_stride_bytes,
+                                   const struct sie_target *target,
+                                   const double *init_T_target_source,
+                                   double *out_T_target_source);
+
+/**
+ * `sie_context_register_to` with a `double` source cloud (strides as in
+ * `sie_context_register_d`).
+ *
+ * # Safety
+ * As `sie_context_register_to`.
+ */
+sie_status sie_context_register_to_d(struct sie_context *ctx,
+                                     const double *source_xyz,
+                                     size_t source_count,
+                                     size_t source_stride_bytes,
+                                     const struct sie_target *target,
+                                     const double *init_T_target_source,
+                                     double *out_T_target_source);
+
+/**
  * Copies the summary of the last successful registration to `*out`. NO_RESULT before the
  * first successful registration and after a failed one.
  *
@@ -945,10 +1073,11 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
  * must hold that many (`models_capacity`), else BUFFER_TOO_SMALL; `out_model_count` (nullable)
  * receives the number of histograms.
  *
- * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (rows is 0 or too small), INVALID_ARGUMENT (cols is 0,
- * bad scale or beta, or a scaled residual above 1e140 in magnitude, whose square would
- * overflow in the fit), NON_FINITE_INPUT (names the index), BUFFER_TOO_SMALL, BUSY,
- * OUT_OF_MEMORY.
+ * Errors: NULL_ARGUMENT, TOO_FEW_POINTS (fewer than 10 rows: too few for a histogram to
+ * fit), INVALID_ARGUMENT (cols is 0, bad scale or beta), NON_FINITE_INPUT (names the index),
+ * BUFFER_TOO_SMALL, BUSY,
+ * OUT_OF_MEMORY. Residuals of any finite magnitude are accepted: the answer does not
+ * depend on their unit, and a residual beyond 1e100 times the typical one is an outlier.
  *
  * # Safety
  * `ctx` is NULL or a live context; `residuals` is NULL or readable for rows*cols doubles;

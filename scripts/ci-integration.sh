@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The integration half of the test suite (called by scripts/test-all.sh): builds libsie with
 # CMake, runs the C and C++ ABI tests with ctest (both also under valgrind), installs into
-# a staging prefix (library, headers, bin/sie), builds a separate consumer project and
+# a staging prefix (library, headers, bin/sie), runs the sequence benchmark on a tiny input,
+# builds a separate consumer project and
 # examples-cpp against that install (find_package + pkg-config), runs the PCL comparison on the
 # bunny and LiDAR pairs with the accuracy checks, PCL's ICP tutorial and a pcl_icp-style tool
 # built with sie::PclRegistration, loads `sie --aligned` output with PCL, and for Python: pip
@@ -105,6 +106,10 @@ check_soname() {
 }
 step "versioned soname and links" check_soname
 step "install: bin/sie (the CLI)" "$prefix/bin/sie" --version
+
+# ---- benchmarks only run, on a tiny input (their numbers are for docs/performance.md) ----------
+step "bench_sequences quick (12 frames of 2000 points, frame-to-frame and frame-to-map)" \
+  cargo run --release --locked --quiet --example bench_sequences -- quick
 
 # ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
 step "consumer: configure with find_package(sie 0.1)" \

@@ -235,9 +235,19 @@ const UNSCALED_MAX_EXPONENT: i32 = 64;
 /// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
 /// `None` when the weights sum to zero. Any finite coordinates: see [`UNSCALED_MAX_EXPONENT`].
 pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
-    let largest = pairs
-        .iter()
-        .flat_map(|(a, b)| a.iter().chain(b))
+    weighted_rigid_fit_by(pairs.len(), |i| pairs[i], weights)
+}
+
+/// [`weighted_rigid_fit`] with pair i given by `pair(i)` for i < `count` (no slice of pairs
+/// needed: ICP reads them from its matches by index). The same arithmetic in the same order.
+pub fn weighted_rigid_fit_by(
+    count: usize,
+    pair: impl Fn(usize) -> (Point, Point),
+    weights: &[f64],
+) -> Option<Solve> {
+    let largest = (0..count.min(weights.len()))
+        .map(&pair)
+        .flat_map(|(a, b)| a.into_iter().chain(b))
         .fold(0.0f64, |m, c| m.max(c.abs()));
     let exponent = if largest > 0.0 && largest.is_finite() {
         largest.log2().floor() as i32
@@ -245,16 +255,16 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
         0
     };
     if exponent.abs() <= UNSCALED_MAX_EXPONENT {
-        return unscaled_rigid_fit(pairs, weights);
+        return unscaled_rigid_fit(count, pair, weights);
     }
     // R is unchanged by a common scale s of both point sets and t scales with it: fit s·a ↦ s·b.
     let shift = (-exponent).clamp(-1000, 1000);
     let scale = 2f64.powi(shift);
-    let scaled: Vec<(Point, Point)> = pairs
-        .iter()
-        .map(|(a, b)| (a.map(|c| c * scale), b.map(|c| c * scale)))
-        .collect();
-    let mut solve = unscaled_rigid_fit(&scaled, weights)?;
+    let scaled = |i: usize| {
+        let (a, b) = pair(i);
+        (a.map(|c| c * scale), b.map(|c| c * scale))
+    };
+    let mut solve = unscaled_rigid_fit(count, scaled, weights)?;
     let translation = translation_part(&solve.transform) * 2f64.powi(-shift);
     solve
         .transform
@@ -263,23 +273,25 @@ pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<S
     Some(solve)
 }
 
-fn unscaled_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
+fn unscaled_rigid_fit(count: usize, pair: impl Fn(usize) -> (Point, Point), weights: &[f64]) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
     }
     let mut mean_a = Vector3::zeros();
     let mut mean_b = Vector3::zeros();
-    for ((a, b), &w) in pairs.iter().zip(weights) {
-        mean_a += w * vector(a);
-        mean_b += w * vector(b);
+    for (i, &w) in weights.iter().take(count).enumerate() {
+        let (a, b) = pair(i);
+        mean_a += w * vector(&a);
+        mean_b += w * vector(&b);
     }
     mean_a /= total;
     mean_b /= total;
     // Centred second pass: exact for far-from-origin (e.g. georeferenced) coordinates.
     let mut cross = Matrix3::zeros();
-    for ((a, b), &w) in pairs.iter().zip(weights) {
-        cross += w * (vector(a) - mean_a) * (vector(b) - mean_b).transpose();
+    for (i, &w) in weights.iter().take(count).enumerate() {
+        let (a, b) = pair(i);
+        cross += w * (vector(&a) - mean_a) * (vector(&b) - mean_b).transpose();
     }
     let svd = cross.svd(true, true);
     let (u, v_t) = (svd.u?, svd.v_t?);
@@ -317,19 +329,39 @@ pub fn point_to_plane_step(
     points: &[(Point, Point, Point)],
     weights: &[f64],
 ) -> Option<Solve> {
+    point_to_plane_step_by(
+        current,
+        points.len(),
+        |i| points[i].0,
+        |i| (points[i].1, points[i].2),
+        weights,
+    )
+}
+
+/// [`point_to_plane_step`] with row i given by `moved(i)` = T·a_i and `plane(i)` = (q_i, n_i)
+/// for i < `count` (ICP reads them from its matches and the target by index instead of
+/// copying 72 bytes a row). The same arithmetic in the same order.
+pub fn point_to_plane_step_by(
+    current: &Matrix4<f64>,
+    count: usize,
+    moved: impl Fn(usize) -> Point,
+    plane: impl Fn(usize) -> (Point, Point),
+    weights: &[f64],
+) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;
     }
+    let weights = &weights[..count.min(weights.len())];
     let mut centre = Vector3::zeros();
-    for ((p, _, _), &w) in points.iter().zip(weights) {
-        centre += w * vector(p);
+    for (i, &w) in weights.iter().enumerate() {
+        centre += w * vector(&moved(i));
     }
     centre /= total;
-    let spread = (points
+    let spread = (weights
         .iter()
-        .zip(weights)
-        .map(|((p, _, _), &w)| w * (vector(p) - centre).norm_squared())
+        .enumerate()
+        .map(|(i, &w)| w * (vector(&moved(i)) - centre).norm_squared())
         .sum::<f64>()
         / total)
         .sqrt();
@@ -337,13 +369,14 @@ pub fn point_to_plane_step(
     let length = if spread > 0.0 { spread } else { 1.0 };
     let mut hessian = Matrix6::zeros();
     let mut gradient = Vector6::zeros();
-    for ((p, q, n), &w) in points.iter().zip(weights) {
+    for (i, &w) in weights.iter().enumerate() {
         if w == 0.0 {
             continue;
         }
-        let normal = vector(n);
-        let arm = vector(p) - centre;
-        let residual = normal.dot(&(vector(p) - vector(q)));
+        let (p, (q, n)) = (moved(i), plane(i));
+        let normal = vector(&n);
+        let arm = vector(&p) - centre;
+        let residual = normal.dot(&(vector(&p) - vector(&q)));
         let rot = arm.cross(&normal) / length;
         let jac = Vector6::new(rot.x, rot.y, rot.z, normal.x, normal.y, normal.z);
         hessian += w * jac * jac.transpose();

@@ -17,6 +17,8 @@ mod settings;
 
 mod register;
 
+mod target;
+
 mod results;
 
 mod estimate;
@@ -35,6 +37,7 @@ pub use estimate::*;
 pub use register::*;
 pub use results::*;
 pub use settings::*;
+pub use target::*;
 
 /// Status returned by every fallible function. `SIE_STATUS_OK` is 0, so `if (status)` tests
 /// for failure; `sie_context_last_error` then has the details. Functions taking a status

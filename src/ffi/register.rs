@@ -57,7 +57,7 @@ impl<T: Coordinate> PointArray<T> {
     }
 }
 
-fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
+pub(super) fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
     for (index, normal) in normals.iter().enumerate() {
         let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
         // An exact zero vector marks a target point without a normal: it is never matched.
@@ -77,7 +77,7 @@ fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
 ///
 /// # Safety
 /// `out_t_target_source` passed `check_output` and is valid for 16 writes.
-unsafe fn run_and_store(
+pub(super) unsafe fn run_and_store(
     state: &mut ContextState,
     cancel_requested: &AtomicBool,
     out_t_target_source: *mut f64,
@@ -159,10 +159,10 @@ unsafe fn register_clouds_from<T: Coordinate>(
                 out_t_target_source,
                 init,
                 |config, hooks, init| {
-                    crate::registration::register_clouds(
+                    crate::registration::register_owned_clouds(
                         &source_points,
-                        &target_points,
-                        normals.as_deref(),
+                        target_points,
+                        normals,
                         init,
                         config,
                         hooks,

@@ -12,21 +12,44 @@ pub(crate) fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())
 }
 
-/// Whether a point survives `skip_non_finite` / `skip_origin` (0.0 == -0.0).
-pub(crate) fn keeps(config: &RegistrationConfig, p: &Point) -> bool {
-    (!config.skip_non_finite || is_finite(p)) && !(config.skip_origin && *p == [0.0; 3])
+/// Which points the caller asked to drop before registering (`skip_non_finite`,
+/// `skip_origin`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Skip {
+    pub(crate) non_finite: bool,
+    /// Points at exactly 0 0 0 (0.0 == -0.0): depth sensors' invalid pixels.
+    pub(crate) origin: bool,
 }
 
-/// Indices of the points kept, or `None` when every point is (nothing to copy).
-pub(crate) fn kept_indices(points: &[Point], config: &RegistrationConfig) -> Option<Vec<u32>> {
-    if points.iter().all(|p| keeps(config, p)) {
-        return None;
+impl Skip {
+    pub(crate) fn of(config: &RegistrationConfig) -> Self {
+        Skip {
+            non_finite: config.skip_non_finite,
+            origin: config.skip_origin,
+        }
     }
-    Some(
-        (0..points.len() as u32)
-            .filter(|&i| keeps(config, &points[i as usize]))
-            .collect(),
-    )
+
+    /// Whether any point can be dropped.
+    pub(crate) fn any(&self) -> bool {
+        self.non_finite || self.origin
+    }
+
+    /// Whether a point survives.
+    pub(crate) fn keeps(&self, p: &Point) -> bool {
+        (!self.non_finite || is_finite(p)) && !(self.origin && *p == [0.0; 3])
+    }
+
+    /// Indices of the points kept, or `None` when every point is (nothing to copy).
+    pub(crate) fn kept_indices(&self, points: &[Point]) -> Option<Vec<u32>> {
+        if !self.any() || points.iter().all(|p| self.keeps(p)) {
+            return None;
+        }
+        Some(
+            (0..points.len() as u32)
+                .filter(|&i| self.keeps(&points[i as usize]))
+                .collect(),
+        )
+    }
 }
 
 /// Maps per-point results of a registration on kept points back to the caller's indexing:

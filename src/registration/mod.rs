@@ -7,6 +7,7 @@ mod driver;
 mod input;
 mod pipeline;
 mod problem;
+mod target;
 mod units;
 
 use std::ops::ControlFlow;
@@ -15,8 +16,8 @@ use nalgebra::Matrix4;
 
 use crate::cost::CostFunction;
 use crate::noise::{NoiseModel, NoiseScales};
-use crate::sie::{HistogramModel, SieOptions};
 pub use crate::sie::estimate::{InlierEstimate, MIN_ESTIMATE_ROWS, estimate_inliers};
+use crate::sie::{HistogramModel, SieOptions};
 
 pub use crate::error::Error;
 pub use crate::geometry::Point;
@@ -326,8 +327,9 @@ pub struct SearchReport {
     pub runner_up_significance: f64,
 }
 
-
-pub use pipeline::{register_clouds, register_correspondences};
+pub(crate) use pipeline::register_owned_clouds;
+pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
+pub use target::{PrepareOptions, PreparedTarget};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.
 #[derive(Default)]

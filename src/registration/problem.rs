@@ -6,11 +6,13 @@ use std::time::Instant;
 use nalgebra::Matrix4;
 use rand::SeedableRng;
 
+use super::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 use super::{Metric, RegistrationConfig};
-use crate::geometry::{Point, Solve, length, point_to_plane_step, splitmix64, transform_point, weighted_rigid_fit};
-use crate::nn::NearestNeighbours;
+use crate::geometry::{
+    Point, Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit,
+    weighted_rigid_fit_by,
+};
 use crate::noise::combine;
-use crate::normals::NormalScale;
 use crate::parallel::Workers;
 
 /// Residual rows of one iteration.
@@ -87,23 +89,28 @@ fn noise_scale(source_sigma: &Option<Vec<f64>>, target_sigma: &Option<Vec<f64>>,
     }
 }
 
-/// RMS over the rows of ‖(new − old)·a_i‖ / F_i, from each row's source point a_i and scale F_i.
-fn rms_displacement(sources: &[Point], scales: &[f64], old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-    if sources.is_empty() {
+/// RMS over the rows of ‖(new − old)·a_i‖ / F_i, from each row's source point a_i =
+/// `source(i)` (i < `count`) and scale F_i.
+fn rms_displacement(
+    count: usize,
+    source: impl Fn(usize) -> Point,
+    scales: &[f64],
+    old: &Matrix4<f64>,
+    new: &Matrix4<f64>,
+) -> f64 {
+    if count == 0 {
         return 0.0;
     }
     let difference = new - old;
-    // A garbage point far out (weight 0 anyway) must not make the size infinite.
-    let sum: f64 = sources
-        .iter()
+    let sum: f64 = (0..count)
         .zip(scales)
-        .map(|(a, f)| {
-            let d = transform_point(&difference, a);
+        .map(|(i, f)| {
+            let d = transform_point(&difference, &source(i));
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (f * f)
         })
         .filter(|v| v.is_finite())
         .sum();
-    (sum / sources.len() as f64).sqrt()
+    (sum / count as f64).sqrt()
 }
 
 /// Median over the points of their largest coordinate magnitude.
@@ -186,7 +193,7 @@ impl Problem for CorrespondenceProblem<'_> {
     }
 
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-        rms_displacement(self.source, &self.rows.scale, old, new)
+        rms_displacement(self.source.len(), |i| self.source[i], &self.rows.scale, old, new)
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
@@ -203,9 +210,10 @@ impl Problem for CorrespondenceProblem<'_> {
 /// is at least d₂ − δ away and the old nearest at most d₁ + δ, so it is still the nearest when
 /// 2δ < d₂ − d₁. Late ICP iterations move points by far less than the gap, so most queries
 /// become one 3×4 product.
+/// The moved point T·p itself is not kept (24 bytes a point): rows and the solver recompute it
+/// from the pass's copy of p, bit for bit.
 #[derive(Clone, Copy)]
 struct Match {
-    point: Point,
     /// Nearest target at the last query.
     nearest: u32,
     /// `history` index of the transform of the last query (NEVER_QUERIED: none).
@@ -214,7 +222,6 @@ struct Match {
     margin: f32,
 }
 
-const NO_MATCH: u32 = u32::MAX;
 const NEVER_QUERIED: u32 = u32::MAX;
 
 /// While β is annealed the fit needs the basin, not the last digit: at most this many source
@@ -223,7 +230,7 @@ const NEVER_QUERIED: u32 = u32::MAX;
 /// 20 000: same errors at 10k/100k/1M points, 10k 0.072 → 0.051 s, 100k 0.69 → 0.48 s.
 const COARSE_POINTS: usize = 5_000;
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum Which {
     Sample,
     Coarse,
@@ -254,31 +261,18 @@ impl Pass {
 
 impl Match {
     const EMPTY: Match = Match {
-        point: [0.0; 3],
         nearest: NO_MATCH,
         queried_at: NEVER_QUERIED,
         margin: 0.0,
     };
 }
 
-/// ICP: nearest-neighbour correspondences from a kd-tree built once per target.
+/// ICP: nearest-neighbour correspondences onto a prepared target (kd-tree and normals shared,
+/// see `PreparedTarget`); this part is per registration.
 pub struct CloudProblem<'a> {
     source: &'a [Point],
-    /// The target in space-filling-curve order (the kd-tree is built on it, so its indices
-    /// refer to this copy): the targets that consecutive queries find, and their normals, are
-    /// then neighbours in memory. `target_order[t]` is the caller's index of `target[t]`.
-    target: Vec<Point>,
-    target_order: Vec<u32>,
-    /// Target normals (point-to-plane), in `target`'s order; `[0, 0, 0]` = no normal.
-    normals: Vec<Point>,
-    /// Which estimated normals exist yet (empty: all do). Normals are estimated only for target
-    /// points that some source point matches: k-NN PCA is the costliest per-point step, and
-    /// with partial overlap many targets are never matched.
-    normal_known: Vec<bool>,
-    normal_scale: Option<NormalScale>,
-    normal_neighbours: usize,
+    target: &'a PreparedTarget,
     metric: Metric,
-    index: NearestNeighbours,
     /// Source points matched in each iteration (all, or a fixed random subset), in
     /// space-filling-curve order: consecutive queries then visit the same tree nodes, which
     /// keeps them in cache (random order is several times slower on large clouds).
@@ -290,6 +284,7 @@ pub struct CloudProblem<'a> {
     /// Every source point, for the final evaluation when `sample` is a subset (filled then).
     everything: Pass,
     source_sigma: Option<Vec<f64>>,
+    /// Per kept target point, in the caller's order.
     target_sigma: Option<Vec<f64>>,
     workers: Workers,
     /// Transforms at which queries were made (see `Match`).
@@ -300,60 +295,40 @@ pub struct CloudProblem<'a> {
     /// at least half of this will most likely fail the skip test again next time.
     typical_margin: f64,
     rows: Rows,
-    /// Source point of each row, for the update size.
-    row_sources: Vec<Point>,
-    /// Per row (point-to-point): source point, matched target point.
-    pairs: Vec<(Point, Point)>,
-    /// Per row (point-to-plane): transformed source point, matched target point, its normal.
-    plane_terms: Vec<(Point, Point, Point)>,
+    /// Per row of the last solvable pass: its index in that pass, from which the solver and the
+    /// update size read the source point, the moved point, the matched target and its normal
+    /// (4 bytes a row instead of copies: 96 bytes a row for point-to-plane).
+    row_pass: Vec<u32>,
+    /// The pass `row_pass` indexes, and the transform it was matched at.
+    solved_pass: Which,
+    linearised: Matrix4<f64>,
+    /// Seconds this registration spent building the target (0 for a target prepared before).
     index_seconds: f64,
     normals_seconds: f64,
 }
 
 impl<'a> CloudProblem<'a> {
+    /// `index_seconds`: what preparing `target` cost, when this registration prepared it.
     pub fn new(
         source: &'a [Point],
-        target: &'a [Point],
-        target_normals: Option<&[Point]>,
+        target: &'a PreparedTarget,
         source_sigma: Option<Vec<f64>>,
         target_sigma: Option<Vec<f64>>,
         config: &RegistrationConfig,
         workers: Workers,
+        index_seconds: f64,
     ) -> Result<Self, String> {
-        // Indices are u32 with u32::MAX (NO_MATCH) reserved.
-        for (what, count) in [("source", source.len()), ("target", target.len())] {
-            if count >= NO_MATCH as usize {
-                return Err(format!(
-                    "{what} has {count} points; at most {} are supported",
-                    NO_MATCH - 1
-                ));
-            }
+        if source.len() >= NO_MATCH as usize {
+            return Err(format!(
+                "source has {} points; at most {} are supported",
+                source.len(),
+                NO_MATCH - 1
+            ));
         }
-        let started = Instant::now();
-        let mut target_order: Vec<u32> = (0..target.len() as u32).collect();
-        sort_along_curve(target, &mut target_order);
-        let in_target_order =
-            |points: &[Point]| -> Vec<Point> { target_order.iter().map(|&i| points[i as usize]).collect() };
-        let sorted_target = in_target_order(target);
-        let index = NearestNeighbours::new(&sorted_target)?;
-        let index_seconds = started.elapsed().as_secs_f64();
-        let started = Instant::now();
-        let normal_neighbours = config.normal_neighbours.min(target.len());
-        let (normals, normal_known, normal_scale) = match (config.metric, target_normals) {
-            (Metric::PointToPoint, _) => (Vec::new(), Vec::new(), None),
-            (Metric::PointToPlane, Some(given)) => (in_target_order(given), Vec::new(), None),
-            (Metric::PointToPlane, None) => (
-                vec![[0.0; 3]; target.len()],
-                vec![false; target.len()],
-                Some(NormalScale::choose(
-                    &sorted_target,
-                    Some(&target_order),
-                    &index,
-                    normal_neighbours,
-                )),
-            ),
+        let normals_seconds = match config.metric {
+            Metric::PointToPlane => target.prepare_normal_estimation(),
+            Metric::PointToPoint => 0.0,
         };
-        let normals_seconds = started.elapsed().as_secs_f64();
         let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);
         sort_along_curve(source, &mut sample);
         let coarse = if sample.len() > COARSE_POINTS {
@@ -369,14 +344,8 @@ impl<'a> CloudProblem<'a> {
         };
         Ok(CloudProblem {
             source,
-            target: sorted_target,
-            target_order,
-            normals,
-            normal_known,
-            normal_scale,
-            normal_neighbours,
+            target,
             metric: config.metric,
-            index,
             sample: Pass::new(source, sample),
             coarse: Pass::new(source, coarse),
             use_coarse: false,
@@ -388,9 +357,9 @@ impl<'a> CloudProblem<'a> {
             moves: Vec::new(),
             typical_margin: f64::INFINITY,
             rows: Rows::default(),
-            row_sources: Vec::new(),
-            pairs: Vec::new(),
-            plane_terms: Vec::new(),
+            row_pass: Vec::new(),
+            solved_pass: Which::Sample,
+            linearised: Matrix4::identity(),
             index_seconds,
             normals_seconds,
         })
@@ -435,8 +404,20 @@ impl<'a> CloudProblem<'a> {
         }
         self.estimate_missing_normals(&pass);
         // The final evaluation (`all`) is not solved: no solver terms for it.
-        self.fill_rows(&pass, !all);
+        self.fill_rows(&pass, transform, !all);
+        if !all {
+            self.solved_pass = which;
+            self.linearised = *transform;
+        }
         *self.pass_mut(which) = pass;
+    }
+
+    fn pass(&self, which: Which) -> &Pass {
+        match which {
+            Which::Sample => &self.sample,
+            Which::Coarse => &self.coarse,
+            Which::Everything => &self.everything,
+        }
     }
 
     fn pass_mut(&mut self, which: Which) -> &mut Pass {
@@ -449,37 +430,17 @@ impl<'a> CloudProblem<'a> {
 
     /// Estimates the normals of the targets this pass matched that have none yet.
     fn estimate_missing_normals(&mut self, pass: &Pass) {
-        let Some(scale) = &self.normal_scale else {
+        if self.metric != Metric::PointToPlane {
             return;
-        };
+        }
         let started = Instant::now();
-        let mut missing = Vec::new();
-        for m in &pass.matches {
-            let t = m.nearest as usize;
-            if m.nearest != NO_MATCH && !self.normal_known[t] {
-                self.normal_known[t] = true;
-                missing.push(m.nearest);
-            }
-        }
-        if missing.is_empty() {
-            return;
-        }
-        let queries: Vec<Point> = missing.iter().map(|&t| self.target[t as usize]).collect();
-        let found = scale.normals_at(
-            &self.target,
-            &self.index,
-            &queries,
-            self.normal_neighbours,
-            &self.workers,
-        );
-        for (&t, n) in missing.iter().zip(found) {
-            self.normals[t as usize] = n;
-        }
+        self.target
+            .ensure_normals(pass.matches.iter().map(|m| m.nearest), &self.workers);
         self.normals_seconds += started.elapsed().as_secs_f64();
     }
 
     fn match_pass(&self, transform: &Matrix4<f64>, pass: &mut Pass, moves: &[Matrix4<f64>], generation: u32) {
-        let (points, index) = (&pass.points, &self.index);
+        let (points, index) = (&pass.points, self.target.index());
         let (last_move, typical_margin) = (moves.last(), self.typical_margin);
         self.workers
             .for_each_chunk_mut(&mut pass.matches, |start, chunk| {
@@ -492,11 +453,11 @@ impl<'a> CloudProblem<'a> {
                         *slot = matched;
                         continue;
                     }
-                    let point = transform_point(transform, a);
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
                             < f64::from(slot.margin);
                     if !unchanged {
+                        let point = transform_point(transform, a);
                         slot.queried_at = generation;
                         // Early on, updates move points by more than the typical gap, so a
                         // cached margin would not be used: the cheaper nearest-only query
@@ -519,7 +480,6 @@ impl<'a> CloudProblem<'a> {
                             };
                         }
                     }
-                    slot.point = point;
                     previous = Some((a, *slot));
                 }
             });
@@ -527,28 +487,32 @@ impl<'a> CloudProblem<'a> {
 
     /// Rows (in the caller's indices) and, with `solver_terms`, the solver's per-row terms of
     /// the matched pairs.
-    fn fill_rows(&mut self, pass: &Pass, solver_terms: bool) {
-        let normals = &self.normals;
+    fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, solver_terms: bool) {
+        let target = self.target;
+        let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
         let rows = &mut self.rows;
         rows.clear();
         rows.considered = pass.order.len();
-        self.row_sources.clear();
-        self.pairs.clear();
-        self.plane_terms.clear();
+        self.row_pass.clear();
         for (k, m) in pass.matches.iter().enumerate() {
-            let t = m.nearest as usize;
-            // A target point without a normal (degenerate neighbourhood) gives no plane.
-            if m.nearest == NO_MATCH || (plane && normals[t] == [0.0; 3]) {
+            if m.nearest == NO_MATCH {
                 continue;
             }
-            let (s, original_t) = (pass.order[k] as usize, self.target_order[t] as usize);
-            let (a, q) = (pass.points[k], self.target[t]);
-            let d = [m.point[0] - q[0], m.point[1] - q[1], m.point[2] - q[2]];
+            let t = m.nearest as usize;
+            let normal = if plane { normals.get(t) } else { [0.0; 3] };
+            // A target point without a normal (degenerate neighbourhood) gives no plane.
+            if plane && normal == [0.0; 3] {
+                continue;
+            }
+            let (s, original_t) = (pass.order[k] as usize, target.order()[t] as usize);
+            let q = target.points()[t];
+            let moved = transform_point(transform, &pass.points[k]);
+            let d = [moved[0] - q[0], moved[1] - q[1], moved[2] - q[2]];
             rows.source.push(s as u32);
             rows.target.push(original_t as u32);
             if plane {
-                let n = normals[t];
+                let n = normal;
                 rows.residual.push(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]);
             } else {
                 rows.residual.extend_from_slice(&d);
@@ -556,51 +520,10 @@ impl<'a> CloudProblem<'a> {
             rows.scale
                 .push(noise_scale(&self.source_sigma, &self.target_sigma, s, original_t));
             if solver_terms {
-                if plane {
-                    self.plane_terms.push((m.point, q, normals[t]));
-                } else {
-                    self.pairs.push((a, q));
-                }
-                self.row_sources.push(a);
+                self.row_pass.push(k as u32);
             }
         }
     }
-}
-
-/// Reorders `indices` along a Morton (Z-order) curve over the points' bounding box (21 bits
-/// per axis); ties keep index order, so the result is deterministic.
-fn sort_along_curve(points: &[Point], indices: &mut [u32]) {
-    let (mut low, mut high) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for &i in indices.iter() {
-        for axis in 0..3 {
-            low[axis] = low[axis].min(points[i as usize][axis]);
-            high[axis] = high[axis].max(points[i as usize][axis]);
-        }
-    }
-    const CELLS: f64 = ((1u32 << 21) - 1) as f64;
-    let scale: [f64; 3] = std::array::from_fn(|axis| {
-        let extent = high[axis] - low[axis];
-        if extent > 0.0 { CELLS / extent } else { 0.0 }
-    });
-    let key = |i: u32| -> u64 {
-        let p = points[i as usize];
-        (0..3).fold(0, |code, axis| {
-            let cell = ((p[axis] - low[axis]) * scale[axis]).clamp(0.0, CELLS) as u64;
-            code | (spread_bits(cell) << axis)
-        })
-    };
-    indices.sort_by_cached_key(|&i| (key(i), i));
-}
-
-/// Spreads the low 21 bits of `v` so that bit b moves to bit 3b.
-fn spread_bits(v: u64) -> u64 {
-    let mut x = v & 0x1f_ffff;
-    x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
-    x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
-    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
-    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
-    x = (x | (x << 2)) & 0x1249_2492_4924_9249;
-    x
 }
 
 /// A fixed, sorted random subset of `limit` source indices (all when `limit` is 0 or ≥ n), so
@@ -622,12 +545,12 @@ impl CloudProblem<'_> {
     /// Median distance from a target point to its nearest other target point (over at most
     /// 1024 evenly strided points), input units.
     pub fn target_spacing(&self) -> f64 {
-        let step = self.target.len().div_ceil(1024).max(1);
-        let mut gaps: Vec<f64> = self
-            .target
+        let points = self.target.points();
+        let step = points.len().div_ceil(1024).max(1);
+        let mut gaps: Vec<f64> = points
             .iter()
             .step_by(step)
-            .map(|p| self.index.nearest_two(p).2)
+            .map(|p| self.target.index().nearest_two(p).2)
             .filter(|d| d.is_finite())
             .collect();
         if gaps.is_empty() {
@@ -672,14 +595,39 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn solve(&mut self, transform: &Matrix4<f64>, weights: &[f64]) -> Option<Solve> {
+        let (pass, rows, target) = (self.pass(self.solved_pass), &self.row_pass, self.target);
+        let matched = |i: usize| pass.matches[rows[i] as usize].nearest as usize;
         match self.metric {
-            Metric::PointToPoint => weighted_rigid_fit(&self.pairs, weights),
-            Metric::PointToPlane => point_to_plane_step(transform, &self.plane_terms, weights),
+            Metric::PointToPoint => weighted_rigid_fit_by(
+                rows.len(),
+                |i| (pass.points[rows[i] as usize], target.points()[matched(i)]),
+                weights,
+            ),
+            Metric::PointToPlane => {
+                let normals = target.normals();
+                point_to_plane_step_by(
+                    transform,
+                    rows.len(),
+                    |i| transform_point(&self.linearised, &pass.points[rows[i] as usize]),
+                    |i| {
+                        let t = matched(i);
+                        (target.points()[t], normals.get(t))
+                    },
+                    weights,
+                )
+            }
         }
     }
 
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-        rms_displacement(&self.row_sources, &self.rows.scale, old, new)
+        let (pass, rows) = (self.pass(self.solved_pass), &self.row_pass);
+        rms_displacement(
+            rows.len(),
+            |i| pass.points[rows[i] as usize],
+            &self.rows.scale,
+            old,
+            new,
+        )
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
@@ -699,32 +647,6 @@ impl Problem for CloudProblem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn spread_bits_interleaves() {
-        assert_eq!(spread_bits(0b1), 0b1);
-        assert_eq!(spread_bits(0b11), 0b1001);
-        assert_eq!(spread_bits(0b101), 0b1_000_001);
-        assert_eq!(spread_bits(0x1f_ffff), 0x1249_2492_4924_9249);
-    }
-
-    #[test]
-    fn curve_order_is_a_permutation_that_groups_nearby_points() {
-        // Two far-apart clusters, interleaved in index order: the curve puts each together.
-        let points: Vec<Point> = (0..100)
-            .map(|i| {
-                let base = if i % 2 == 0 { 0.0 } else { 100.0 };
-                [base + (i / 2) as f64 * 1e-3, base, base]
-            })
-            .collect();
-        let mut order: Vec<u32> = (0..100).collect();
-        sort_along_curve(&points, &mut order);
-        let mut sorted = order.clone();
-        sorted.sort_unstable();
-        assert_eq!(sorted, (0..100).collect::<Vec<u32>>());
-        let switches = order.windows(2).filter(|w| w[0] % 2 != w[1] % 2).count();
-        assert_eq!(switches, 1, "{order:?}");
-    }
 
     #[test]
     fn sampling_is_deterministic_sorted_and_bounded() {

@@ -34,6 +34,11 @@ impl Units {
     /// distance of its points from it, robust to a few garbage points) and noise scales (their
     /// median).
     pub(crate) fn choose(source: &[Point], target: &[Point], sigmas: &[&[f64]]) -> Units {
+        Units::of_lengths(source, target).with_noise_of(sigmas)
+    }
+
+    /// The length part of [`Units::choose`] (the noise unit 1).
+    pub(crate) fn of_lengths(source: &[Point], target: &[Point]) -> Units {
         let largest = source
             .iter()
             .chain(target)
@@ -61,14 +66,25 @@ impl Units {
                 largest
             };
         }
+        units
+    }
+
+    /// These units with the noise unit set by the noise scales (their median), when it lies
+    /// outside the safe range.
+    pub(crate) fn with_noise_of(mut self, sigmas: &[&[f64]]) -> Units {
         let all: Vec<f64> = sigmas.iter().flat_map(|s| s.iter().copied()).collect();
         if !all.is_empty() {
             let typical = median(all);
             if typical > SAFE || typical < 1.0 / SAFE {
-                units.noise = typical;
+                self.noise = typical;
             }
         }
-        units
+        self
+    }
+
+    /// A point in these units back in the caller's.
+    pub(crate) fn point_out(&self, p: &Point) -> Point {
+        std::array::from_fn(|axis| p[axis] * self.length + self.centre[axis])
     }
 
     pub(crate) fn is_identity(&self) -> bool {

@@ -709,6 +709,137 @@ static void test_cloud_registration(sie_context *ctx) {
     EXPECT(ctx, sie_context_set_cost_function(ctx, SIE_COST_FUNCTION_SIE, 0.0), SIE_STATUS_OK);
 }
 
+/* Result of the last registration on ctx: transform, summary and correspondences. */
+typedef struct {
+    double T[16];
+    sie_summary summary;
+    int64_t correspondences[CLOUD];
+} stored_result;
+
+static void store(sie_context *ctx, const double T[16], stored_result *out) {
+    size_t len = 0;
+    memcpy(out->T, T, sizeof out->T);
+    EXPECT(ctx, sie_context_get_summary(ctx, &out->summary), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_correspondences(ctx, out->correspondences, CLOUD, &len), SIE_STATUS_OK);
+    CHECK(len == CLOUD);
+}
+
+/* Bit for bit: transform, summary and correspondences. */
+static int same_result(const stored_result *a, const stored_result *b) {
+    return memcmp(a->T, b->T, sizeof a->T) == 0 && memcmp(&a->summary.sigma, &b->summary.sigma, sizeof a->summary.sigma) == 0 &&
+           a->summary.iterations == b->summary.iterations && a->summary.inlier_fraction == b->summary.inlier_fraction &&
+           a->summary.rmse == b->summary.rmse &&
+           memcmp(a->correspondences, b->correspondences, sizeof a->correspondences) == 0;
+}
+
+static void test_prepared_target(sie_context *ctx) {
+    sie_target *target = NULL;
+    sie_target *untouched = (sie_target *)&rng_state; /* a sentinel that must not be overwritten */
+    sie_target *sentinel = untouched;
+    sie_context *other = sie_context_new();
+    stored_result direct, prepared, again;
+    double T[16], kept[16];
+    point_normal bad_normal[3];
+    int k;
+
+    /* Both contexts estimate normals from 10 neighbours (test_setters left 12). */
+    EXPECT(ctx, sie_context_set_normal_neighbours(ctx, 10), SIE_STATUS_OK);
+    /* Errors name the argument; the output is not written. */
+    EXPECT(ctx, sie_context_prepare_target(ctx, &cloud_target[0].x, CLOUD, sizeof(padded_point), NULL, 0, NULL),
+           SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "out_target"));
+    EXPECT(ctx, sie_context_prepare_target(ctx, NULL, CLOUD, 0, NULL, 0, &untouched), SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "xyz"));
+    EXPECT(ctx, sie_context_prepare_target(ctx, &cloud_target[0].x, 2, sizeof(padded_point), NULL, 0, &untouched),
+           SIE_STATUS_TOO_FEW_POINTS);
+    EXPECT(ctx, sie_context_prepare_target(ctx, &cloud_target[0].x, CLOUD, 5, NULL, 0, &untouched),
+           SIE_STATUS_INVALID_ARGUMENT);
+    memcpy(bad_normal, cloud_target_normals, sizeof bad_normal);
+    bad_normal[1].normal_x = 2.0f;
+    EXPECT(ctx, sie_context_prepare_target(ctx, &bad_normal[0].x, 3, sizeof(point_normal), &bad_normal[0].normal_x,
+                                           sizeof(point_normal), &untouched),
+           SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "normals[1]"));
+    CHECK(untouched == sentinel);
+    CHECK(sie_target_point_count(NULL) == 0);
+    CHECK(sie_target_estimate_normals(NULL, 0) == SIE_STATUS_NULL_ARGUMENT);
+    sie_target_free(NULL);
+
+    /* Float target, 16-byte stride: the same result as sie_context_register, twice. */
+    EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
+                                     sizeof(padded_point), NULL, T),
+           SIE_STATUS_OK);
+    store(ctx, T, &direct);
+    EXPECT(ctx, sie_context_prepare_target(ctx, &cloud_target[0].x, CLOUD, sizeof(padded_point), NULL, 0, &target),
+           SIE_STATUS_OK);
+    CHECK(target != NULL);
+    CHECK(sie_target_point_count(target) == CLOUD);
+    for (k = 0; k < 2; k++) {
+        EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), target, NULL, T),
+               SIE_STATUS_OK);
+        store(ctx, T, &prepared);
+        CHECK(same_result(&direct, &prepared));
+    }
+    /* Another context registers onto the same target. */
+    EXPECT(other, sie_context_register_to(other, &cloud_source[0].x, CLOUD, sizeof(padded_point), target, NULL, T),
+           SIE_STATUS_OK);
+    store(other, T, &again);
+    CHECK(same_result(&direct, &again));
+    /* Normals estimated up front change nothing. */
+    CHECK(sie_target_estimate_normals(target, 2) == SIE_STATUS_OK);
+    CHECK(sie_target_estimate_normals(target, 5000) == SIE_STATUS_INVALID_ARGUMENT);
+    EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), target, IDENTITY, T),
+           SIE_STATUS_OK);
+    store(ctx, T, &again);
+    CHECK(same_result(&direct, &again));
+    /* A config whose normals differ from the target's is refused, outputs untouched. */
+    memcpy(kept, T, sizeof kept);
+    EXPECT(ctx, sie_context_set_normal_neighbours(ctx, 20), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), target, NULL, T),
+           SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "normal_neighbours"));
+    CHECK(memcmp(kept, T, sizeof kept) == 0);
+    EXPECT(ctx, sie_context_get_summary(ctx, &again.summary), SIE_STATUS_NO_RESULT);
+    EXPECT(ctx, sie_context_set_normal_neighbours(ctx, 10), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), NULL, NULL, T),
+           SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "target"));
+    EXPECT(ctx, sie_context_register_to(ctx, NULL, CLOUD, 0, target, NULL, T), SIE_STATUS_NULL_ARGUMENT);
+    EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, 0, sizeof(padded_point), target, NULL, T),
+           SIE_STATUS_TOO_FEW_POINTS);
+    sie_target_free(target);
+
+    /* Given normals (48-byte stride). */
+    EXPECT(ctx, sie_context_register_with_normals(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point),
+                                                  &cloud_target_normals[0].x, CLOUD, sizeof(point_normal),
+                                                  &cloud_target_normals[0].normal_x, sizeof(point_normal), NULL, T),
+           SIE_STATUS_OK);
+    store(ctx, T, &direct);
+    EXPECT(ctx, sie_context_prepare_target(ctx, &cloud_target_normals[0].x, CLOUD, sizeof(point_normal),
+                                           &cloud_target_normals[0].normal_x, sizeof(point_normal), &target),
+           SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_to(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), target, NULL, T),
+           SIE_STATUS_OK);
+    store(ctx, T, &prepared);
+    CHECK(same_result(&direct, &prepared));
+    sie_target_free(target);
+
+    /* Double clouds, point-to-point. */
+    EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_POINT), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_d(ctx, cloud_source_d, CLOUD, 0, cloud_target_d, CLOUD, 0, NULL, T), SIE_STATUS_OK);
+    store(ctx, T, &direct);
+    EXPECT(ctx, sie_context_prepare_target_d(ctx, cloud_target_d, CLOUD, 0, NULL, 0, &target), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_to_d(ctx, cloud_source_d, CLOUD, 0, target, NULL, T), SIE_STATUS_OK);
+    store(ctx, T, &prepared);
+    CHECK(same_result(&direct, &prepared));
+    check_cloud_result(ctx, SIE_STATUS_OK, T, "double source onto a prepared double target, point-to-point");
+    sie_target_free(target);
+    EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_set_normal_neighbours(ctx, 12), SIE_STATUS_OK);
+    sie_context_free(other);
+}
+
 static void test_noise_callback(sie_context *ctx) {
     noise_log log;
     double T[16];
@@ -935,6 +1066,7 @@ int main(void) {
     test_estimate_errors(ctx);
     test_correspondence_registration(ctx);
     test_cloud_registration(ctx);
+    test_prepared_target(ctx);
     test_noise_callback(ctx);
     test_estimate_inliers(ctx);
     test_progress_transform(ctx);

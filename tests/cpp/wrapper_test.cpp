@@ -11,10 +11,12 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdint>
 #include <cstring>
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -412,6 +414,65 @@ void test_estimate_inliers() {
 
 } // namespace
 
+void test_prepared_target(const Clouds &clouds) {
+    static_assert(std::is_copy_constructible<sie::Target>::value, "copies share one target");
+    sie::Context context;
+    context.set_threads(1);
+    const sie::Transform direct = context.align(clouds.source, clouds.target);
+    const std::vector<std::int64_t> direct_matches = context.correspondences();
+    sie::Target empty;
+    CHECK(!empty && empty.size() == 0);
+    EXPECT_ERROR(sie::Status::NullArgument, context.align(clouds.source, empty));
+    EXPECT_ERROR(sie::Status::NullArgument, empty.estimate_normals());
+
+    const sie::Target target = context.prepare_target(clouds.target);
+    CHECK(target && target.size() == clouds.target.size());
+    for (int round = 0; round < 2; ++round) {
+        CHECK(context.align(clouds.source, target) == direct);
+        CHECK(context.correspondences() == direct_matches);
+    }
+    // Contexts on four threads at once, onto one target (a copy: shared ownership).
+    const sie::Target shared = target;
+    std::vector<sie::Transform> results(4);
+    std::vector<std::thread> threads;
+    for (std::size_t k = 0; k < results.size(); ++k) {
+        threads.emplace_back([&, k] {
+            sie::Context own;
+            own.set_threads(1);
+            results[k] = own.align(clouds.source, shared);
+        });
+    }
+    for (auto &thread : threads) {
+        thread.join();
+    }
+    for (const auto &result : results) {
+        CHECK(result == direct);
+    }
+    target.estimate_normals(2);
+    CHECK(context.align(clouds.source, target) == direct);
+    // Given normals, and double clouds, take the same paths as align().
+    const sie::Transform with_normals = context.align_with_normals(clouds.source, clouds.target, clouds.target_normals);
+    CHECK(context.align(clouds.source, context.prepare_target(clouds.target, clouds.target_normals)) == with_normals);
+    std::vector<std::array<double, 3>> source_d, target_d;
+    for (const auto &p : clouds.source) {
+        source_d.push_back({p[0], p[1], p[2]});
+    }
+    for (const auto &p : clouds.target) {
+        target_d.push_back({p[0], p[1], p[2]});
+    }
+    const sie::Transform direct_d = context.align(source_d, target_d);
+    CHECK(context.align(source_d, context.prepare_target(sie::PointsD(target_d))) == direct_d);
+    CHECK(close_to(direct_d, clouds.truth, 0.2, 0.004));
+    // Errors: normal count, settings that do not fit the target's normals.
+    const std::string detail =
+        EXPECT_ERROR(sie::Status::InvalidArgument,
+                     context.prepare_target(clouds.target, sie::Points(clouds.target_normals.front().data(), 10, 12)));
+    CHECK(contains(detail, "normals"));
+    context.set_normal_neighbours(20);
+    CHECK(context.normal_neighbours() == 20);
+    EXPECT_ERROR(sie::Status::InvalidArgument, context.align(clouds.source, target));
+}
+
 int main() {
     try {
         const Clouds clouds = room_clouds(2500);
@@ -422,6 +483,7 @@ int main() {
         test_correspondences();
         test_noise_callback(clouds);
         test_progress_cancel_and_skipping(clouds);
+        test_prepared_target(clouds);
         test_estimate_inliers();
     } catch (const std::exception &unexpected) {
         std::fprintf(stderr, "unexpected exception: %s\n", unexpected.what());

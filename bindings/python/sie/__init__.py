@@ -49,6 +49,7 @@ __all__ = [
     "NoiseModel",
     "Registration",
     "SieError",
+    "Target",
     "Status",
     "StopReason",
     "Summary",
@@ -361,6 +362,58 @@ def _trace_entry(e: _native.sie_trace_entry) -> TraceEntry:
                       transform)
 
 
+class Target:
+    """A prepared target cloud (sie_target): its kd-tree and normals built once for many
+    Context.align(source, target) calls (odometry onto the previous frame, scan-to-map), with
+    the same results as aligning onto the points themselves. Immutable: contexts on several
+    threads may align onto one Target at once (the library releases the GIL).
+
+    Target(points, normals=None, normal_neighbours=10, skip_non_finite=False), or
+    Context.prepare_target(points, normals) with that context's settings. The points are
+    copied. Freed by close() or the garbage collector."""
+
+    def __init__(self, points: CloudLike, normals: Optional[npt.ArrayLike] = None,
+                 normal_neighbours: int = 10, skip_non_finite: bool = False) -> None:
+        self._handle = ctypes.c_void_p(None)
+        with Context(normal_neighbours=normal_neighbours, skip_non_finite=skip_non_finite) as context:
+            self._handle = context._prepare(points, normals)
+
+    @classmethod
+    def _adopt(cls, handle: ctypes.c_void_p) -> "Target":
+        target = cls.__new__(cls)
+        target._handle = handle
+        return target
+
+    def __len__(self) -> int:
+        """Points the target was made from."""
+        return int(_lib.sie_target_point_count(self._handle))
+
+    def estimate_normals(self, threads: int = 0) -> None:
+        """Estimates every normal not estimated yet (threads: 0 = one per core), so that no later
+        align() pays for them. Results are the same either way."""
+        if not self._handle.value:
+            raise SieError(Status.NULL_ARGUMENT, "the target is closed")
+        status = _lib.sie_target_estimate_normals(self._handle, int(threads))
+        if status != Status.OK:
+            raise SieError(status, f"threads = {threads}; at most 1024")
+
+    def close(self) -> None:
+        """Frees the target; no align() may be using it."""
+        handle = getattr(self, "_handle", None)
+        if handle is not None and handle.value:
+            _lib.sie_target_free(handle)
+            self._handle = ctypes.c_void_p(None)
+
+    def __enter__(self) -> "Target":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        self.close()
+
+
 class Context:
     """A libsie context: configuration, noise callback, last result.
 
@@ -555,15 +608,52 @@ class Context:
 
     # ---- registration ------------------------------------------------------------------
 
-    def align(self, source: CloudLike, target: CloudLike, init: Optional[npt.ArrayLike] = None,
+    def prepare_target(self, points: CloudLike, normals: Optional[npt.ArrayLike] = None) -> Target:
+        """A Target for many align(source, target) calls, with this context's normal_neighbours
+        and skip_non_finite. normals: N x 3 unit normals (0 0 0 for none), or None to estimate
+        them; an Open3D cloud's own normals are used unless normals is given."""
+        return Target._adopt(self._prepare(points, normals))
+
+    def _prepare(self, points: CloudLike, normals: Optional[npt.ArrayLike]) -> ctypes.c_void_p:
+        opened = _open3d_cloud(points)
+        if opened is not None:
+            points = opened[0]
+            if normals is None:
+                normals = opened[1]
+        dtype = _cloud_dtype(points) if normals is None else _cloud_dtype(points, normals)
+        p = _points(points, "points", dtype)
+        n = None if normals is None else _points(normals, "normals", dtype)
+        if n is not None and n.count != p.count:
+            raise ValueError(f"normals has {n.count} rows for {p.count} points")
+        handle = ctypes.c_void_p(None)
+        prepare = _lib.sie_context_prepare_target if dtype == np.float32 else _lib.sie_context_prepare_target_d
+        self._check(prepare(self._handle, p.pointer, p.count, p.stride, None if n is None else n.pointer,
+                            0 if n is None else n.stride, ctypes.byref(handle)))
+        return handle
+
+    def align(self, source: CloudLike, target: Union[CloudLike, Target], init: Optional[npt.ArrayLike] = None,
               target_normals: Optional[npt.ArrayLike] = None) -> Registration:
         """ICP of source onto target; see the module docstring for the clouds accepted.
         target_normals (N x 3, unit or 0 0 0 for none) replaces the estimated normals of
         point-to-plane (float32 entry point); an Open3D target's own normals are used the same
-        way unless target_normals is given."""
+        way unless target_normals is given. target may be a Target (prepared once; its normals
+        are fixed then)."""
         opened = _open3d_cloud(source)
         if opened is not None:
             source = opened[0]
+        if isinstance(target, Target):
+            if target_normals is not None:
+                raise ValueError("a Target carries its normals: pass them to prepare_target instead")
+            if not target._handle.value:
+                raise SieError(Status.NULL_ARGUMENT, "the target is closed")
+            dtype = _cloud_dtype(source)
+            s = _points(source, "source", dtype)
+            transform_in = _transform_in(init)
+            out = np.empty((4, 4), dtype=np.float64)
+            register_to = _lib.sie_context_register_to if dtype == np.float32 else _lib.sie_context_register_to_d
+            self._run(register_to(self._handle, s.pointer, s.count, s.stride, target._handle,
+                                  _double_pointer(transform_in), _double_pointer(out)))
+            return self._registration(out)
         opened = _open3d_cloud(target)
         if opened is not None:
             target = opened[0]

@@ -83,6 +83,7 @@ NOISE_FN = ctypes.CFUNCTYPE(
 PROGRESS_FN = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.POINTER(sie_trace_entry))
 
 _ctx = ctypes.c_void_p
+_target = ctypes.c_void_p
 
 # name: (restype, argtypes)
 _SIGNATURES = {
@@ -132,6 +133,25 @@ _SIGNATURES = {
     "sie_context_register_correspondences_d": (
         status_t,
         [_ctx, c_double_p, ctypes.c_size_t, c_double_p, ctypes.c_size_t, ctypes.c_size_t, c_double_p, c_double_p],
+    ),
+    "sie_context_prepare_target": (
+        status_t,
+        [_ctx, c_float_p, ctypes.c_size_t, ctypes.c_size_t, c_float_p, ctypes.c_size_t, ctypes.POINTER(_target)],
+    ),
+    "sie_context_prepare_target_d": (
+        status_t,
+        [_ctx, c_double_p, ctypes.c_size_t, ctypes.c_size_t, c_double_p, ctypes.c_size_t, ctypes.POINTER(_target)],
+    ),
+    "sie_target_estimate_normals": (status_t, [_target, ctypes.c_uint32]),
+    "sie_target_point_count": (ctypes.c_size_t, [_target]),
+    "sie_target_free": (None, [_target]),
+    "sie_context_register_to": (
+        status_t,
+        [_ctx, c_float_p, ctypes.c_size_t, ctypes.c_size_t, _target, c_double_p, c_double_p],
+    ),
+    "sie_context_register_to_d": (
+        status_t,
+        [_ctx, c_double_p, ctypes.c_size_t, ctypes.c_size_t, _target, c_double_p, c_double_p],
     ),
     "sie_context_get_summary": (status_t, [_ctx, ctypes.POINTER(sie_summary)]),
     "sie_context_get_inlier_probabilities": (status_t, [_ctx, c_double_p, ctypes.c_size_t, c_size_t_p]),

@@ -245,6 +245,59 @@ def test_padded_float32_and_float64_agree(clouds):
     np.testing.assert_allclose(as_double, packed, atol=1e-6)
 
 
+def test_prepared_target_gives_the_same_results_and_is_shared_by_threads(clouds):
+    import threading
+
+    source, target, normals = clouds
+    ctx = sie.Context(threads=1)
+    direct = ctx.align(source, target)
+    prepared = ctx.prepare_target(target)
+    assert len(prepared) == len(target)
+    for _ in range(2):  # the second call reuses the normals the first estimated
+        again = ctx.align(source, prepared)
+        np.testing.assert_array_equal(again.transform, direct.transform)
+        np.testing.assert_array_equal(again.correspondences, direct.correspondences)
+        np.testing.assert_array_equal(again.inlier_probabilities, direct.inlier_probabilities)
+    # Several contexts on several threads at once, onto one target built by sie.Target.
+    shared = sie.Target(target)
+    shared.estimate_normals(2)
+    results = [None] * 4
+
+    def run(k):
+        with sie.Context(threads=1) as own:
+            results[k] = own.align(source, shared).transform
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for transform in results:
+        np.testing.assert_array_equal(transform, direct.transform)
+    # Given normals and float64 take the same paths as align().
+    with_normals = ctx.align(source, target, target_normals=normals)
+    np.testing.assert_array_equal(ctx.align(source, ctx.prepare_target(target, normals)).transform,
+                                  with_normals.transform)
+    as_double = ctx.align(source.astype(np.float64), target.astype(np.float64))
+    np.testing.assert_array_equal(
+        ctx.align(source.astype(np.float64), sie.Target(target.astype(np.float64))).transform, as_double.transform)
+    # Errors: normals twice, a closed target, a normal count that differs, a bad setting.
+    with pytest.raises(ValueError, match="carries its normals"):
+        ctx.align(source, prepared, target_normals=normals)
+    with pytest.raises(ValueError, match="normals has 10 rows"):
+        sie.Target(target, normals[:10])
+    with pytest.raises(sie.SieError) as error:
+        sie.Target(target, normal_neighbours=2)
+    assert error.value.status is sie.Status.INVALID_ARGUMENT
+    with pytest.raises(sie.SieError) as error:
+        sie.Context(normal_neighbours=20).align(source, prepared)
+    assert error.value.status is sie.Status.INVALID_ARGUMENT and "normal_neighbours" in str(error.value)
+    prepared.close()
+    with pytest.raises(sie.SieError) as error:
+        ctx.align(source, prepared)
+    assert error.value.status is sie.Status.NULL_ARGUMENT
+
+
 def test_initial_guess_and_caller_normals(clouds):
     source, target, normals = clouds
     ctx = sie.Context(max_iterations=100)

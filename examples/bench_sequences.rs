@@ -1,0 +1,486 @@
+//! Odometry benchmark: sie over frame sequences, frame to previous frame and frame to a growing
+//! map, the targets prepared once (`PreparedTarget`). Prints frames per second and drift (the
+//! relative pose error of each frame's motion) as CSV rows, in the same format as
+//! bench/sequences.py prints for small_gicp and KISS-ICP on the same frames (bench/sequences.sh
+//! runs all of them and the report).
+//!
+//! ```text
+//! bench_sequences write DIR [FRAMES] [N,N,...]   synthetic room trajectories (default 100 frames
+//!                                                 of 10000 and 50000 points) and, if
+//!                                                 SIE_DATA_DIR has them, the Kinect frames and
+//!                                                 the LiDAR pair, as DIR/<name>/
+//! bench_sequences run DIR [THREADS,...]          CSV on stdout (default 1,2 threads)
+//! bench_sequences quick                          a 12-frame 2000-point trajectory, written to a
+//!                                                 temporary folder and run once (CI)
+//! ```
+//!
+//! A sequence folder holds `NNNN.f32` (float32 x y z per point, little-endian), `poses.txt` (one
+//! row-major T_world_sensor per line, 16 numbers) and `voxel.txt` (the map's voxel size, m).
+use std::collections::HashMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
+use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
+use sie::synthetic::room_trajectory;
+use sie::{Hooks, Point, PrepareOptions, PreparedTarget, RegistrationConfig, register_clouds_to};
+
+/// The map gets a keyframe every this many frames; its prepared target serves the frames between.
+const KEYFRAME_INTERVAL: usize = 5;
+/// Range noise of the synthetic scanner (m).
+const RANGE_NOISE: f64 = 0.01;
+/// Every this many pixels of a Kinect depth frame in each direction (as the scans table).
+const DEPTH_STRIDE: usize = 4;
+
+pub const HEADER: &str = "library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,rpe_r_rmse_deg,rpe_t_max_mm,note";
+
+struct Sequence {
+    name: String,
+    frames: Vec<Vec<Point>>,
+    poses: Vec<Matrix4<f64>>,
+    voxel: f64,
+}
+
+fn main() -> Result<(), String> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        Some("write") => {
+            let dir = PathBuf::from(args.get(1).ok_or("write needs DIR")?);
+            let frames = args
+                .get(2)
+                .map_or(Ok(100), |a| a.parse::<usize>().map_err(|e| e.to_string()))?;
+            let sizes = parse_list(args.get(3).map_or("10000,50000", String::as_str))?;
+            write_sequences(&dir, frames, &sizes)
+        }
+        Some("run") => {
+            let dir = PathBuf::from(args.get(1).ok_or("run needs DIR")?);
+            let threads = parse_list(args.get(2).map_or("1,2", String::as_str))?;
+            println!("{HEADER}");
+            for sequence in read_sequences(&dir)? {
+                for &t in &threads {
+                    for mode in [Mode::PreviousFrame, Mode::Map] {
+                        println!("{}", run(&sequence, mode, t)?.csv());
+                    }
+                }
+            }
+            Ok(())
+        }
+        Some("quick") => {
+            let dir = std::env::temp_dir().join(format!("sie-bench-sequences-{}", std::process::id()));
+            write_synthetic(&dir, 12, 2_000)?;
+            println!("{HEADER}");
+            let result = (|| {
+                for sequence in read_sequences(&dir)? {
+                    for mode in [Mode::PreviousFrame, Mode::Map] {
+                        let row = run(&sequence, mode, 1)?;
+                        println!("{}", row.csv());
+                        // A sanity bound, not a benchmark: odometry on clean synthetic frames.
+                        if !(row.rpe_t_rmse_mm < 50.0 && row.rpe_r_rmse_deg < 1.0) {
+                            return Err(format!("implausible drift: {}", row.csv()));
+                        }
+                    }
+                }
+                Ok(())
+            })();
+            fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+            result
+        }
+        _ => Err("usage: bench_sequences write DIR [FRAMES] [N,...] | run DIR [THREADS,...] | quick".into()),
+    }
+}
+
+fn parse_list(text: &str) -> Result<Vec<usize>, String> {
+    text.split(',')
+        .map(|v| v.trim().parse::<usize>().map_err(|e| format!("{v:?}: {e}")))
+        .collect()
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Mode {
+    /// Frame i onto frame i − 1 (prepared once, as the next frame's target).
+    PreviousFrame,
+    /// Frame i onto a voxel map of keyframes in the world frame.
+    Map,
+}
+
+impl Mode {
+    fn name(self) -> &'static str {
+        match self {
+            Mode::PreviousFrame => "frame-to-frame",
+            Mode::Map => "frame-to-map",
+        }
+    }
+}
+
+struct Row {
+    sequence: String,
+    points: usize,
+    frames: usize,
+    threads: usize,
+    mode: Mode,
+    seconds: f64,
+    rpe_t_rmse_mm: f64,
+    rpe_r_rmse_deg: f64,
+    rpe_t_max_mm: f64,
+    note: String,
+}
+
+impl Row {
+    fn csv(&self) -> String {
+        // Frames registered: all but the first.
+        let registered = self.frames.saturating_sub(1) as f64;
+        format!(
+            "sie,SIE point-to-plane,{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{}",
+            self.sequence,
+            self.points,
+            self.frames,
+            self.threads,
+            self.mode.name(),
+            self.seconds,
+            registered / self.seconds,
+            self.rpe_t_rmse_mm,
+            self.rpe_r_rmse_deg,
+            self.rpe_t_max_mm,
+            self.note
+        )
+    }
+}
+
+/// Runs odometry over the sequence from the true first pose with a constant-velocity guess.
+fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
+    let config = RegistrationConfig {
+        threads,
+        ..RegistrationConfig::default()
+    };
+    let options = PrepareOptions::from_config(&config);
+    let frames = &sequence.frames;
+    let mut estimates = vec![sequence.poses[0]];
+    let mut velocity = Matrix4::identity(); // last frame-to-frame motion
+    let mut iterations = 0u64;
+    let started = Instant::now();
+    let mut map = VoxelMap::new(sequence.voxel);
+    let mut target = match mode {
+        Mode::PreviousFrame => PreparedTarget::new(&frames[0], None, &options),
+        Mode::Map => {
+            map.insert(&frames[0], &sequence.poses[0]);
+            PreparedTarget::new(&map.points, None, &options)
+        }
+    }
+    .map_err(|e| e.to_string())?;
+    for i in 1..frames.len() {
+        let previous = estimates[i - 1];
+        let pose = match mode {
+            Mode::PreviousFrame => {
+                let result =
+                    register_clouds_to(&frames[i], &target, Some(&velocity), &config, Hooks::default())
+                        .map_err(|e| format!("frame {i}: {e}"))?;
+                iterations += u64::from(result.iterations);
+                target = PreparedTarget::new(&frames[i], None, &options).map_err(|e| e.to_string())?;
+                previous * result.transform
+            }
+            Mode::Map => {
+                let guess = previous * velocity;
+                let result = register_clouds_to(&frames[i], &target, Some(&guess), &config, Hooks::default())
+                    .map_err(|e| format!("frame {i}: {e}"))?;
+                iterations += u64::from(result.iterations);
+                if i % KEYFRAME_INTERVAL == 0 {
+                    map.insert(&frames[i], &result.transform);
+                    target = PreparedTarget::new(&map.points, None, &options).map_err(|e| e.to_string())?;
+                }
+                result.transform
+            }
+        };
+        velocity = sie::geometry::orthonormalised(&(previous.try_inverse().ok_or("singular pose")? * pose));
+        estimates.push(pose);
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let (rpe_t_rmse_mm, rpe_r_rmse_deg, rpe_t_max_mm) = relative_pose_errors(&sequence.poses, &estimates);
+    let registered = frames.len().saturating_sub(1).max(1) as u64;
+    let mut note = format!("{:.1} iterations/frame", iterations as f64 / registered as f64);
+    if mode == Mode::Map {
+        note += &format!(
+            "; map {} points at {} m voxels; keyframe every {KEYFRAME_INTERVAL}",
+            map.points.len(),
+            sequence.voxel
+        );
+    }
+    Ok(Row {
+        sequence: sequence.name.clone(),
+        points: frames.iter().map(Vec::len).sum::<usize>() / frames.len(),
+        frames: frames.len(),
+        threads,
+        mode,
+        seconds,
+        rpe_t_rmse_mm,
+        rpe_r_rmse_deg,
+        rpe_t_max_mm,
+        note,
+    })
+}
+
+/// RMS and max of each frame's relative pose error: E_i = (G_{i−1}⁻¹ G_i)⁻¹ (P_{i−1}⁻¹ P_i),
+/// translation in mm, rotation in degrees (as the paper's TUM table, per frame).
+fn relative_pose_errors(truth: &[Matrix4<f64>], estimate: &[Matrix4<f64>]) -> (f64, f64, f64) {
+    let (mut t2, mut r2, mut t_max, mut n) = (0.0, 0.0, 0.0f64, 0.0);
+    for i in 1..truth.len() {
+        let true_motion = truth[i - 1].try_inverse().expect("rigid") * truth[i];
+        let estimated_motion = estimate[i - 1].try_inverse().expect("rigid") * estimate[i];
+        let error = true_motion.try_inverse().expect("rigid") * estimated_motion;
+        let t = translation_part(&error).norm() * 1e3;
+        let r = rotation_angle(&rotation_part(&error)).to_degrees();
+        t2 += t * t;
+        r2 += r * r;
+        t_max = t_max.max(t);
+        n += 1.0;
+    }
+    ((t2 / n).sqrt(), (r2 / n).sqrt(), t_max)
+}
+
+/// Keyframe points in the world frame, one per voxel (the first that fell into it).
+struct VoxelMap {
+    voxel: f64,
+    occupied: HashMap<[i64; 3], ()>,
+    points: Vec<Point>,
+}
+
+impl VoxelMap {
+    fn new(voxel: f64) -> Self {
+        VoxelMap {
+            voxel,
+            occupied: HashMap::new(),
+            points: Vec::new(),
+        }
+    }
+
+    fn insert(&mut self, frame: &[Point], pose: &Matrix4<f64>) {
+        for p in frame {
+            let w = transform_point(pose, p);
+            let key = w.map(|c| (c / self.voxel).floor() as i64);
+            if self.occupied.insert(key, ()).is_none() {
+                self.points.push(w);
+            }
+        }
+    }
+}
+
+// ---- sequences on disk -------------------------------------------------------------------
+
+fn write_sequences(dir: &Path, frames: usize, sizes: &[usize]) -> Result<(), String> {
+    for &n in sizes {
+        eprintln!("room trajectory: {frames} frames of {n} points");
+        write_synthetic(dir, frames, n)?;
+    }
+    let data = std::env::var_os("SIE_DATA_DIR").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
+        PathBuf::from,
+    );
+    let kinect = data.join("slambook-joinmap-rgbd");
+    if kinect.is_dir() {
+        eprintln!("Kinect frames from {}", kinect.display());
+        write_sequence(dir, &kinect_sequence(&kinect)?)?;
+    } else {
+        eprintln!("skipped: {} not found (set SIE_DATA_DIR)", kinect.display());
+    }
+    let lidar = data.join("small_gicp-data");
+    if lidar.is_dir() {
+        eprintln!("LiDAR pair from {}", lidar.display());
+        let target = sie::io::read_cloud(&lidar.join("target.ply"))?.points;
+        let source = sie::io::read_cloud(&lidar.join("source.ply"))?.points;
+        let t_target_source = sie::io::read_transform(&lidar.join("T_target_source.txt"))?;
+        write_sequence(
+            dir,
+            &Sequence {
+                name: "lidar-pair".into(),
+                frames: vec![target, source],
+                poses: vec![Matrix4::identity(), t_target_source],
+                voxel: 0.25,
+            },
+        )?;
+    }
+    Ok(())
+}
+
+fn write_synthetic(dir: &Path, frames: usize, points: usize) -> Result<(), String> {
+    let trajectory = room_trajectory(frames, points, RANGE_NOISE, 7);
+    write_sequence(
+        dir,
+        &Sequence {
+            name: format!("room-{points}"),
+            frames: trajectory.frames,
+            poses: trajectory.poses,
+            voxel: 0.05,
+        },
+    )
+}
+
+fn write_sequence(dir: &Path, sequence: &Sequence) -> Result<(), String> {
+    let folder = dir.join(&sequence.name);
+    fs::create_dir_all(&folder).map_err(|e| format!("{}: {e}", folder.display()))?;
+    for (i, frame) in sequence.frames.iter().enumerate() {
+        let bytes: Vec<u8> = frame
+            .iter()
+            .flat_map(|p| p.iter().flat_map(|&c| (c as f32).to_le_bytes()))
+            .collect();
+        let path = folder.join(format!("{i:04}.f32"));
+        fs::write(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    let poses: String = sequence
+        .poses
+        .iter()
+        .map(|t| {
+            let row_major: Vec<String> = (0..16).map(|k| format!("{:.17e}", t[(k / 4, k % 4)])).collect();
+            row_major.join(" ") + "\n"
+        })
+        .collect();
+    let write = |name: &str, text: String| {
+        fs::write(folder.join(name), text).map_err(|e| format!("{}/{name}: {e}", folder.display()))
+    };
+    write("poses.txt", poses)?;
+    write("voxel.txt", format!("{}\n", sequence.voxel))
+}
+
+fn read_sequences(dir: &Path) -> Result<Vec<Sequence>, String> {
+    let mut folders: Vec<PathBuf> = fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|path| path.join("poses.txt").is_file())
+        .collect();
+    folders.sort();
+    folders.iter().map(|folder| read_sequence(folder)).collect()
+}
+
+fn read_sequence(folder: &Path) -> Result<Sequence, String> {
+    let read = |name: &str| {
+        fs::read_to_string(folder.join(name)).map_err(|e| format!("{}/{name}: {e}", folder.display()))
+    };
+    let numbers = |line: &str| -> Result<Vec<f64>, String> {
+        line.split_whitespace()
+            .map(|v| v.parse::<f64>().map_err(|e| format!("{v:?}: {e}")))
+            .collect()
+    };
+    let mut poses = Vec::new();
+    for line in read("poses.txt")?.lines().filter(|l| !l.trim().is_empty()) {
+        let values = numbers(line)?;
+        if values.len() != 16 {
+            return Err(format!("{}: a pose needs 16 numbers", folder.display()));
+        }
+        poses.push(Matrix4::from_row_slice(&values));
+    }
+    let voxel = numbers(&read("voxel.txt")?)?
+        .first()
+        .copied()
+        .ok_or("voxel.txt is empty")?;
+    let mut frames = Vec::with_capacity(poses.len());
+    for i in 0..poses.len() {
+        let path = folder.join(format!("{i:04}.f32"));
+        let bytes = fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let frame: Vec<Point> = bytes
+            .chunks_exact(12)
+            .map(|p| {
+                std::array::from_fn(|d| {
+                    f64::from(f32::from_le_bytes(p[4 * d..4 * d + 4].try_into().unwrap()))
+                })
+            })
+            .collect();
+        frames.push(frame);
+    }
+    let name = folder
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(Sequence {
+        name,
+        frames,
+        poses,
+        voxel,
+    })
+}
+
+/// The slambook Kinect frames 2..5 (every `DEPTH_STRIDE`-th pixel) with their poses; see the
+/// data README and examples/experiments/scans.rs.
+fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
+    // Intrinsics and depth scale from the data README (joinMap.cpp).
+    const FX: f64 = 518.0;
+    const FY: f64 = 519.0;
+    const CX: f64 = 325.5;
+    const CY: f64 = 253.5;
+    const DEPTH_SCALE: f64 = 1000.0;
+    let text = fs::read_to_string(folder.join("pose.txt")).map_err(|e| format!("pose.txt: {e}"))?;
+    let mut poses = Vec::new();
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(|f| f.parse::<f64>().map_err(|e| format!("pose.txt: {e}")))
+            .collect::<Result<_, _>>()?;
+        if v.len() != 7 {
+            return Err(format!("pose.txt: expected tx ty tz qx qy qz qw, got {line}"));
+        }
+        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[6], v[3], v[4], v[5]));
+        poses.push((Translation3::new(v[0], v[1], v[2]) * q).to_homogeneous());
+    }
+    // Frame 1 -> 2 is a large motion with little overlap (the data README: median NN distance
+    // 21 cm at the true poses) on which every library fails; drift is measured on 2..5.
+    let poses = poses.split_off(1);
+    let mut frames = Vec::new();
+    for i in 2..=poses.len() + 1 {
+        let path = folder.join("depth").join(format!("{i}.pgm"));
+        let bytes = fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let (width, height, pixels) = parse_pgm16(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        let mut points = Vec::new();
+        for v in (0..height).step_by(DEPTH_STRIDE) {
+            for u in (0..width).step_by(DEPTH_STRIDE) {
+                let d = pixels[v * width + u];
+                if d != 0 {
+                    let z = f64::from(d) / DEPTH_SCALE;
+                    points.push([(u as f64 - CX) * z / FX, (v as f64 - CY) * z / FY, z]);
+                }
+            }
+        }
+        frames.push(points);
+    }
+    Ok(Sequence {
+        name: "kinect-slambook-2to5".into(),
+        frames,
+        poses,
+        voxel: 0.02,
+    })
+}
+
+/// Binary 16-bit PGM (P5, big-endian): width, height, pixels. Comments in the header are not
+/// supported (the slambook frames have none; scans.rs has the full reader).
+fn parse_pgm16(bytes: &[u8]) -> Result<(usize, usize, Vec<u16>), String> {
+    let mut fields = Vec::new();
+    let mut pos = 0;
+    while fields.len() < 4 {
+        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+        let start = pos;
+        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+        if start == pos {
+            return Err("truncated PGM header".into());
+        }
+        fields.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
+    }
+    let number = |t: &str| {
+        t.parse::<usize>()
+            .map_err(|_| format!("bad PGM header value {t:?}"))
+    };
+    if fields[0] != "P5" || number(&fields[3])? < 256 {
+        return Err("not a 16-bit binary PGM".into());
+    }
+    let (width, height) = (number(&fields[1])?, number(&fields[2])?);
+    let raster = &bytes[pos + 1..];
+    if raster.len() < 2 * width * height {
+        return Err("truncated PGM raster".into());
+    }
+    let pixels = raster
+        .chunks_exact(2)
+        .take(width * height)
+        .map(|b| u16::from_be_bytes([b[0], b[1]]))
+        .collect();
+    Ok((width, height, pixels))
+}

@@ -1,0 +1,498 @@
+//! A target cloud prepared once for many registrations: sorted along a space-filling curve,
+//! indexed by a kd-tree, with its normals (given, or estimated on demand and kept).
+//!
+//! Immutable from the outside and `Send + Sync`: share one behind an `Arc` between threads and
+//! register many sources against it at once (odometry onto the previous frame, scan-to-map).
+//! Estimated normals are filled lazily by whichever registration first matches a target point
+//! and kept for the later ones; two threads that race on the same point compute the same bits,
+//! so results never depend on who got there first.
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Instant;
+
+use super::input::{Skip, is_finite, require_finite, require_points};
+use super::units::Units;
+use crate::error::Error;
+use crate::geometry::Point;
+use crate::nn::NearestNeighbours;
+use crate::normals::NormalScale;
+use crate::parallel::Workers;
+
+/// Indices are u32 with u32::MAX reserved for "no match".
+pub(crate) const NO_MATCH: u32 = u32::MAX;
+
+/// How a target is prepared.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PrepareOptions {
+    /// Neighbours for PCA normals when none are given (as `RegistrationConfig::normal_neighbours`;
+    /// a registration whose config asks for another count is refused).
+    pub normal_neighbours: usize,
+    /// Drop target points with a NaN or infinite coordinate instead of refusing them
+    /// (correspondences still name the caller's indices); a non-finite given normal then counts
+    /// as "no normal".
+    pub skip_non_finite: bool,
+    /// Drop target points at exactly 0 0 0 (depth sensors' invalid pixels).
+    pub skip_origin: bool,
+}
+
+impl Default for PrepareOptions {
+    fn default() -> Self {
+        PrepareOptions {
+            normal_neighbours: super::RegistrationConfig::default().normal_neighbours,
+            skip_non_finite: false,
+            skip_origin: false,
+        }
+    }
+}
+
+impl PrepareOptions {
+    /// The options `register_clouds` prepares its target with under `config`.
+    pub fn from_config(config: &super::RegistrationConfig) -> Self {
+        PrepareOptions {
+            normal_neighbours: config.normal_neighbours,
+            skip_non_finite: config.skip_non_finite,
+            skip_origin: config.skip_origin,
+        }
+    }
+}
+
+/// A target cloud ready for `register_clouds_to`. See the module documentation.
+pub struct PreparedTarget {
+    /// The (kept) target points in curve order; the kd-tree's indices refer to this copy, so the
+    /// targets consecutive queries find, and their normals, are neighbours in memory.
+    points: Vec<Point>,
+    /// `points[t]` is kept point `order[t]` (kept points are numbered in the caller's order).
+    order: Vec<u32>,
+    /// The caller's index of each kept point when non-finite points were dropped.
+    kept: Option<Vec<u32>>,
+    /// Points the caller gave, dropped ones included.
+    given_count: usize,
+    index: NearestNeighbours,
+    normals: TargetNormals,
+    /// The options' count, before capping at the cloud size (what configs are compared with).
+    normal_neighbours: usize,
+    index_seconds: f64,
+    /// The units `points` are held in (the caller's unless they were beyond the safe range).
+    units: Units,
+}
+
+enum TargetNormals {
+    /// The caller's normals in curve order; `[0, 0, 0]` = no normal. `any`: some is non-zero.
+    Given { normals: Vec<Point>, any: bool },
+    /// Estimated by k-NN PCA, set up by the first point-to-plane registration.
+    Estimated(Box<OnceLock<EstimatedNormals>>),
+}
+
+/// A view of a target's normals (see `PreparedTarget::normals`).
+pub(crate) enum Normals<'a> {
+    /// Not set up (point-to-point so far): every normal reads `[0, 0, 0]`.
+    None,
+    Given(&'a [Point]),
+    Estimated(&'a EstimatedNormals),
+}
+
+impl Normals<'_> {
+    /// The normal of curve-order target `t` (`[0, 0, 0]`: none, or not estimated yet).
+    pub(crate) fn get(&self, t: usize) -> Point {
+        match self {
+            Normals::None => [0.0; 3],
+            Normals::Given(normals) => normals[t],
+            Normals::Estimated(estimated) if estimated.known[t].load(Ordering::Acquire) => estimated.values
+                [t]
+                .each_ref()
+                .map(|c| f64::from_bits(c.load(Ordering::Relaxed))),
+            Normals::Estimated(_) => [0.0; 3],
+        }
+    }
+}
+
+/// Normals filled as registrations reach their points. Components are stored as f64 bits in
+/// atomics so that concurrent registrations can fill them without locks; `known[t]` is set
+/// (release) after the three components, and read (acquire) before them.
+pub(crate) struct EstimatedNormals {
+    scale: NormalScale,
+    values: Vec<[AtomicU64; 3]>,
+    known: Vec<AtomicBool>,
+}
+
+impl PreparedTarget {
+    /// Sorts `target` along a space-filling curve and builds its kd-tree. `normals` (one unit
+    /// vector per point, `[0, 0, 0]` for none) are used by point-to-plane; without them, normals
+    /// are estimated from `normal_neighbours` neighbours when a registration first needs them.
+    ///
+    /// Errors: fewer than 3 (finite) points, a non-finite coordinate or normal (unless
+    /// `skip_non_finite`), a normal count that differs from the point count, a bad
+    /// `normal_neighbours`, more than u32::MAX − 1 points.
+    pub fn new(target: &[Point], normals: Option<&[Point]>, options: &PrepareOptions) -> Result<Self, Error> {
+        if !(3..=1000).contains(&options.normal_neighbours) {
+            return Err(Error::InvalidArgument(format!(
+                "normal_neighbours must be in 3..=1000, got {}",
+                options.normal_neighbours
+            )));
+        }
+        if let Some(normals) = normals {
+            if normals.len() != target.len() {
+                return Err(Error::InvalidArgument(format!(
+                    "target has {} points but {} normals",
+                    target.len(),
+                    normals.len()
+                )));
+            }
+        }
+        let kept = Skip {
+            non_finite: options.skip_non_finite,
+            origin: options.skip_origin,
+        }
+        .kept_indices(target);
+        let pick = |points: &[Point]| -> Vec<Point> {
+            match &kept {
+                Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
+                None => points.to_vec(),
+            }
+        };
+        // Copies only when points are dropped.
+        let kept_points = kept.as_ref().map(|_| pick(target));
+        let points = kept_points.as_deref().unwrap_or(target);
+        require_points("target", points.len(), 3)?;
+        require_finite("target", points)?;
+        let kept_normals: Option<Vec<Point>> = match (normals, options.skip_non_finite) {
+            (Some(normals), true) => Some(
+                pick(normals)
+                    .into_iter()
+                    .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
+                    .collect(),
+            ),
+            (Some(normals), false) => {
+                require_finite("target normals", normals)?;
+                None
+            }
+            (None, _) => None,
+        };
+        let normals = kept_normals.as_deref().or(normals);
+        if points.len() >= NO_MATCH as usize {
+            return Err(Error::InvalidArgument(format!(
+                "target has {} points; at most {} are supported",
+                points.len(),
+                NO_MATCH - 1
+            )));
+        }
+        // Coordinates beyond the safe range are held in units where they are not (the results
+        // are converted back by the registration).
+        let units = Units::of_lengths(&[], points);
+        let normalised = (!units.is_identity()).then(|| units.points(points));
+        let points = normalised.as_deref().unwrap_or(points);
+        let started = Instant::now();
+        let mut order: Vec<u32> = (0..points.len() as u32).collect();
+        sort_along_curve(points, &mut order);
+        let in_order =
+            |values: &[Point]| -> Vec<Point> { order.iter().map(|&i| values[i as usize]).collect() };
+        let sorted = in_order(points);
+        let index = NearestNeighbours::new(&sorted).map_err(Error::InvalidArgument)?;
+        let index_seconds = started.elapsed().as_secs_f64();
+        let normals = match normals {
+            Some(given) => {
+                let normals = in_order(given);
+                let any = normals.iter().any(|n| *n != [0.0; 3]);
+                TargetNormals::Given { normals, any }
+            }
+            None => TargetNormals::Estimated(Box::default()),
+        };
+        Ok(PreparedTarget {
+            points: sorted,
+            order,
+            kept,
+            given_count: target.len(),
+            index,
+            normals,
+            normal_neighbours: options.normal_neighbours,
+            index_seconds,
+            units,
+        })
+    }
+
+    /// Points the caller gave (dropped non-finite ones included).
+    pub fn len(&self) -> usize {
+        self.given_count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.given_count == 0
+    }
+
+    /// Points indexed (the finite ones when non-finite points were skipped).
+    pub fn indexed_len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether the caller gave normals.
+    pub fn has_given_normals(&self) -> bool {
+        matches!(self.normals, TargetNormals::Given { .. })
+    }
+
+    /// The neighbour count estimated normals use (`PrepareOptions::normal_neighbours`).
+    pub fn normal_neighbours(&self) -> usize {
+        self.normal_neighbours
+    }
+
+    /// Seconds spent sorting and building the kd-tree.
+    pub fn index_seconds(&self) -> f64 {
+        self.index_seconds
+    }
+
+    /// Estimates every normal not estimated yet (point-to-plane without given normals), on
+    /// `threads` threads (0 = one per core), so that no later registration pays for them:
+    /// e.g. for a map prepared in the background. Registrations otherwise estimate the normals
+    /// they reach, which is less work when they reach only part of the target. Returns the
+    /// seconds spent. Results are the same either way, bit for bit.
+    pub fn estimate_all_normals(&self, threads: usize) -> Result<f64, Error> {
+        let workers = Workers::new(threads).map_err(Error::InvalidArgument)?;
+        let started = Instant::now();
+        if !matches!(self.normals, TargetNormals::Given { .. }) {
+            self.ensure_normals(0..self.points.len() as u32, &workers);
+        }
+        Ok(started.elapsed().as_secs_f64())
+    }
+
+    /// The caller's (kept) points in the caller's order, for per-point noise callbacks.
+    pub(crate) fn points_in_caller_order(&self) -> Vec<Point> {
+        let mut points = vec![[0.0; 3]; self.points.len()];
+        for (t, &k) in self.order.iter().enumerate() {
+            points[k as usize] = self.units.point_out(&self.points[t]);
+        }
+        points
+    }
+
+    /// The units the points are held in.
+    pub(crate) fn units(&self) -> Units {
+        self.units
+    }
+
+    pub(crate) fn points(&self) -> &[Point] {
+        &self.points
+    }
+
+    pub(crate) fn order(&self) -> &[u32] {
+        &self.order
+    }
+
+    pub(crate) fn kept(&self) -> Option<&[u32]> {
+        self.kept.as_deref()
+    }
+
+    pub(crate) fn index(&self) -> &NearestNeighbours {
+        &self.index
+    }
+
+    /// Given normals that are all zero (point-to-plane has nothing to work with).
+    pub(crate) fn given_normals_all_zero(&self) -> bool {
+        matches!(self.normals, TargetNormals::Given { any: false, .. })
+    }
+
+    /// Sets up normal estimation (chooses the neighbourhood scale) if no registration has yet;
+    /// returns the seconds this call spent on it.
+    pub(crate) fn prepare_normal_estimation(&self) -> f64 {
+        let started = Instant::now();
+        if let TargetNormals::Estimated(cell) = &self.normals {
+            cell.get_or_init(|| {
+                let n = self.points.len();
+                let k = self.normal_neighbours.min(n);
+                EstimatedNormals {
+                    scale: NormalScale::choose(&self.points, Some(&self.order), &self.index, k),
+                    values: (0..n)
+                        .map(|_| [AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)])
+                        .collect(),
+                    known: (0..n).map(|_| AtomicBool::new(false)).collect(),
+                }
+            });
+        }
+        started.elapsed().as_secs_f64()
+    }
+
+    /// Estimates the normals of `targets` (curve-order indices, repeats allowed) that are not
+    /// known yet. Needs `prepare_normal_estimation` first; a no-op for given normals.
+    pub(crate) fn ensure_normals(&self, targets: impl Iterator<Item = u32>, workers: &Workers) {
+        self.prepare_normal_estimation();
+        let TargetNormals::Estimated(cell) = &self.normals else {
+            return;
+        };
+        let Some(estimated) = cell.get() else {
+            return;
+        };
+        let mut missing: Vec<u32> = targets
+            .filter(|&t| t != NO_MATCH && !estimated.known[t as usize].load(Ordering::Acquire))
+            .collect();
+        if missing.is_empty() {
+            return;
+        }
+        // Curve order: neighbouring queries visit the same tree nodes.
+        missing.sort_unstable();
+        missing.dedup();
+        let queries: Vec<Point> = missing.iter().map(|&t| self.points[t as usize]).collect();
+        let k = self.normal_neighbours.min(self.points.len());
+        let found = estimated
+            .scale
+            .normals_at(&self.points, &self.index, &queries, k, workers);
+        for (&t, n) in missing.iter().zip(found) {
+            let slot = &estimated.values[t as usize];
+            for (component, value) in slot.iter().zip(n) {
+                component.store(value.to_bits(), Ordering::Relaxed);
+            }
+            estimated.known[t as usize].store(true, Ordering::Release);
+        }
+    }
+
+    /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not
+    /// estimated yet, or point-to-point).
+    #[cfg(test)]
+    pub(crate) fn normal(&self, t: usize) -> Point {
+        self.normals().get(t)
+    }
+
+    /// The normals as they are now, for many look-ups.
+    pub(crate) fn normals(&self) -> Normals<'_> {
+        match &self.normals {
+            TargetNormals::Given { normals, .. } => Normals::Given(normals),
+            TargetNormals::Estimated(cell) => match cell.get() {
+                Some(estimated) => Normals::Estimated(estimated),
+                None => Normals::None,
+            },
+        }
+    }
+}
+
+/// Reorders `indices` along a Morton (Z-order) curve over the points' bounding box (21 bits
+/// per axis); ties keep index order, so the result is deterministic.
+pub(crate) fn sort_along_curve(points: &[Point], indices: &mut [u32]) {
+    let (mut low, mut high) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for &i in indices.iter() {
+        for axis in 0..3 {
+            low[axis] = low[axis].min(points[i as usize][axis]);
+            high[axis] = high[axis].max(points[i as usize][axis]);
+        }
+    }
+    const CELLS: f64 = ((1u32 << 21) - 1) as f64;
+    let scale: [f64; 3] = std::array::from_fn(|axis| {
+        let extent = high[axis] - low[axis];
+        if extent > 0.0 { CELLS / extent } else { 0.0 }
+    });
+    let key = |i: u32| -> u64 {
+        let p = points[i as usize];
+        (0..3).fold(0, |code, axis| {
+            let cell = ((p[axis] - low[axis]) * scale[axis]).clamp(0.0, CELLS) as u64;
+            code | (spread_bits(cell) << axis)
+        })
+    };
+    // Keys made unique by the index: an unstable sort gives the one order, and sorting 16-byte
+    // pairs needs less memory than a cached-key sort (24 bytes a point; 240 MB at 10 M).
+    let mut keyed: Vec<(u64, u32)> = indices.iter().map(|&i| (key(i), i)).collect();
+    keyed.sort_unstable();
+    for (slot, (_, i)) in indices.iter_mut().zip(keyed) {
+        *slot = i;
+    }
+}
+
+/// Spreads the low 21 bits of `v` so that bit b moves to bit 3b.
+fn spread_bits(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
+    x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
+    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+    x = (x | (x << 2)) & 0x1249_2492_4924_9249;
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spread_bits_interleaves() {
+        assert_eq!(spread_bits(0b1), 0b1);
+        assert_eq!(spread_bits(0b11), 0b1001);
+        assert_eq!(spread_bits(0b101), 0b1_000_001);
+        assert_eq!(spread_bits(0x1f_ffff), 0x1249_2492_4924_9249);
+    }
+
+    #[test]
+    fn curve_order_is_a_permutation_that_groups_nearby_points() {
+        // Two far-apart clusters, interleaved in index order: the curve puts each together.
+        let points: Vec<Point> = (0..100)
+            .map(|i| {
+                let base = if i % 2 == 0 { 0.0 } else { 100.0 };
+                [base + (i / 2) as f64 * 1e-3, base, base]
+            })
+            .collect();
+        let mut order: Vec<u32> = (0..100).collect();
+        sort_along_curve(&points, &mut order);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..100).collect::<Vec<u32>>());
+        let switches = order.windows(2).filter(|w| w[0] % 2 != w[1] % 2).count();
+        assert_eq!(switches, 1, "{order:?}");
+    }
+
+    #[test]
+    fn prepared_target_is_send_and_sync() {
+        fn shareable<T: Send + Sync>() {}
+        shareable::<PreparedTarget>();
+    }
+
+    #[test]
+    fn lazy_normals_equal_normals_estimated_all_at_once() {
+        let scene = crate::synthetic::room_scene(3_000, 0.01, 3);
+        let lazy = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        let eager = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        eager.estimate_all_normals(2).unwrap();
+        let workers = Workers::new(1).unwrap();
+        // Lazy: every third point, then the rest in reverse, in small batches.
+        let n = lazy.indexed_len() as u32;
+        lazy.ensure_normals((0..n).step_by(3), &workers);
+        for start in (0..n).rev().step_by(500) {
+            lazy.ensure_normals(start.saturating_sub(500)..=start, &workers);
+        }
+        let estimated = (0..n as usize).filter(|&t| eager.normal(t) != [0.0; 3]).count();
+        assert!(estimated > n as usize * 9 / 10, "{estimated} of {n}");
+        for t in 0..n as usize {
+            assert_eq!(
+                lazy.normal(t).map(f64::to_bits),
+                eager.normal(t).map(f64::to_bits),
+                "target {t}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_targets_are_refused_with_a_reason() {
+        let options = PrepareOptions::default();
+        let two = [[0.0; 3], [1.0, 0.0, 0.0]];
+        assert!(matches!(
+            PreparedTarget::new(&two, None, &options),
+            Err(Error::TooFewPoints(_))
+        ));
+        let nan = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [f64::NAN, 0.0, 0.0]];
+        assert!(matches!(
+            PreparedTarget::new(&nan, None, &options),
+            Err(Error::NonFinite(_))
+        ));
+        let skipping = PrepareOptions {
+            skip_non_finite: true,
+            ..options.clone()
+        };
+        let prepared = PreparedTarget::new(&nan, None, &skipping).unwrap();
+        assert_eq!((prepared.len(), prepared.indexed_len()), (4, 3));
+        assert_eq!(prepared.kept(), Some(&[0, 1, 2][..]));
+        let err = PreparedTarget::new(&nan[..3], Some(&two), &options)
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("3 points but 2 normals"), "{err}");
+        let few_neighbours = PrepareOptions {
+            normal_neighbours: 2,
+            ..options
+        };
+        assert!(matches!(
+            PreparedTarget::new(&nan[..3], None, &few_neighbours),
+            Err(Error::InvalidArgument(_))
+        ));
+    }
+}
