@@ -210,6 +210,8 @@ struct BestOfStarts {
     /// Number of the next update (the runs are numbered on).
     next_iteration: u32,
     starts_run: u32,
+    /// Every start's trace entries, in the order they ran (the result reports all updates).
+    trace: Vec<TraceEntry>,
 }
 
 impl BestOfStarts {
@@ -220,6 +222,7 @@ impl BestOfStarts {
             ends: Vec::new(),
             next_iteration: 1,
             starts_run: 0,
+            trace: Vec::new(),
         }
     }
 
@@ -228,6 +231,7 @@ impl BestOfStarts {
     fn offer(&mut self, problem: &dyn Problem, mut result: RegistrationResult, start: StartKind) -> bool {
         self.starts_run += 1;
         self.next_iteration = result.iterations + 1;
+        self.trace.append(&mut result.trace);
         let cluster = self.evidence.assess(problem, &mut result);
         let significance = cluster.significance;
         let precision = fitted_sigma(&result) * (6.0 / (cluster.count.max(1) as f64)).sqrt();
@@ -248,6 +252,7 @@ impl BestOfStarts {
     fn finish(self, problem: &dyn Problem) -> RegistrationResult {
         let (_, mut result) = self.best.expect("at least one start ran");
         result.iterations = self.next_iteration - 1;
+        result.trace = self.trace;
         result.search.starts_run = self.starts_run;
         let (mut agreeing, mut runner_up) = (0, 0.0f64);
         let typical_scale = median(problem.rows().scale.clone());
@@ -619,12 +624,13 @@ fn register_from_starts(
                     rotation_tolerance: LEAD_ROTATION_TOLERANCE,
                     ..config.clone()
                 };
-                let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut())?;
-                best.next_iteration = led.iterations + 1;
+                let mut led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut())?;
                 if led.stop_reason == StopReason::Cancelled {
                     best.offer(problem, led, StartKind::ScaleFreeLead);
                     break;
                 }
+                best.next_iteration = led.iterations + 1;
+                best.trace.append(&mut led.trace);
                 (led.transform, StartKind::ScaleFreeLead)
             }
         };
