@@ -35,11 +35,11 @@
 
 /** Version of this header; compare with sie_version_number() / sie_version_string(). */
 #define SIE_VERSION_MAJOR 0
-#define SIE_VERSION_MINOR 1
+#define SIE_VERSION_MINOR 2
 #define SIE_VERSION_PATCH 0
-#define SIE_VERSION_STRING "0.1.0"
+#define SIE_VERSION_STRING "0.2.0"
 /** (SIE_VERSION_MAJOR << 16) | (SIE_VERSION_MINOR << 8) | SIE_VERSION_PATCH */
-#define SIE_VERSION_NUMBER 0x000100u
+#define SIE_VERSION_NUMBER 0x000200u
 
 
 /**
@@ -248,6 +248,35 @@ typedef uint32_t sie_histogram_mode;
 #endif // __cplusplus
 
 /**
+ * Where SIE starts (`sie_context_set_starts`).
+ */
+enum sie_starts
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * Several starts, the most significant result is kept (the default). Correspondences:
+     * the initial guess and the best poses of a threshold-free hypothesis search. Clouds: the
+     * initial guess with the paper's beta0, with a narrow beta0, and after a scale-free (L1)
+     * lead. Applies to the SIE cost with the automatic initial beta; baseline costs and a
+     * fixed initial beta (`sie_context_set_regularizer`) run once from the initial guess.
+     */
+    SIE_STARTS_AUTOMATIC = 0,
+    /**
+     * One run from the initial guess: the paper's method as published.
+     */
+    SIE_STARTS_INITIAL_GUESS = 1,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sie_starts sie_starts;
+#else
+typedef uint32_t sie_starts;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * Why a registration stopped (`sie_summary.stop_reason`).
  */
 enum sie_stop_reason
@@ -282,6 +311,78 @@ enum sie_stop_reason
 typedef enum sie_stop_reason sie_stop_reason;
 #else
 typedef uint32_t sie_stop_reason;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * How far to trust a registration (`sie_summary.verdict`), from the evidence in the other
+ * quality fields of `sie_summary`. `converged` only says that the iterations settled; this
+ * says whether the data support the pose they settled at.
+ */
+enum sie_verdict
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * No result (a summary that was never filled).
+     */
+    SIE_VERDICT_NONE = 0,
+    /**
+     * The evidence supports the pose: a significant inlier cluster, a pose the inliers
+     * constrain in every direction, no other start ending elsewhere nearly as significant and
+     * (clouds) inlier residuals no wider than the target points' spacing. Use it.
+     */
+    SIE_VERDICT_GOOD = 1,
+    /**
+     * Registered, but some of that evidence is weak (see significance, conditioning,
+     * sigma_to_spacing, margin): check the pose before use, or retry from another guess.
+     */
+    SIE_VERDICT_DOUBTFUL = 2,
+    /**
+     * No inlier cluster stands out from the background of chance matches at the fitted scale:
+     * the data do not support this pose. Reject it.
+     */
+    SIE_VERDICT_UNSUPPORTED = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sie_verdict sie_verdict;
+#else
+typedef uint32_t sie_verdict;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
+ * Which start the returned transform came from (`sie_summary.start`).
+ */
+enum sie_start_kind
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * The caller's initial guess (the identity when none was given) with the paper's beta0.
+     */
+    SIE_START_KIND_INITIAL_GUESS = 0,
+    /**
+     * The initial guess with beta0 far below the RMS of the initial residuals (clouds).
+     */
+    SIE_START_KIND_NARROW_BETA = 1,
+    /**
+     * A scale-free (L1) run from the initial guess, then SIE (clouds).
+     */
+    SIE_START_KIND_SCALE_FREE_LEAD = 2,
+    /**
+     * A pose found by the hypothesis search (correspondences).
+     */
+    SIE_START_KIND_HYPOTHESIS = 3,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sie_start_kind sie_start_kind;
+#else
+typedef uint32_t sie_start_kind;
 #endif // __STDC_VERSION__ >= 202311L
 #endif // __cplusplus
 
@@ -467,6 +568,58 @@ typedef struct sie_summary {
      * True when stop_reason is SIE_STOP_REASON_CONVERGED.
      */
     bool converged;
+    /**
+     * How far to trust the result, a `sie_verdict`: GOOD, DOUBTFUL or UNSUPPORTED. The fields
+     * below up to `margin` are its evidence.
+     */
+    uint32_t verdict;
+    /**
+     * Which start the transform came from, a `sie_start_kind`.
+     */
+    uint32_t start;
+    /**
+     * Significance of the inlier cluster at the returned transform, at the scale of the
+     * fitted sigma: -ln of a bound on the probability that chance matches form a cluster that
+     * large (nats; 0 when nothing stands out from chance, which makes the verdict UNSUPPORTED).
+     */
+    double significance;
+    /**
+     * How well the weighted inliers constrain the pose at the last update, 0..1 (the least
+     * over the most constrained direction); below 1e-3 (inliers on one plane or one line) the
+     * verdict is not GOOD.
+     */
+    double conditioning;
+    /**
+     * Fitted sigma over the typical distance between neighbouring target points (clouds; 0 for
+     * correspondences, which have no spacing). Above 1 the verdict is not GOOD. DBL_MAX when
+     * that spacing is 0 (most target points have an exact duplicate).
+     */
+    double sigma_to_spacing;
+    /**
+     * significance / runner_up_significance: how much more significant the result is than the
+     * best start that ended at another pose; below 2 the verdict is not GOOD. 0 when no start
+     * ended elsewhere (runner_up_significance is then 0): nothing to compare with, so no limit
+     * (the value would be infinite; outputs are always finite).
+     */
+    double margin;
+    /**
+     * The largest significance among starts that ended at another pose (0: none did).
+     */
+    double runner_up_significance;
+    /**
+     * Starts SIE was run from (1 with SIE_STARTS_INITIAL_GUESS, a baseline cost or a fixed
+     * initial beta).
+     */
+    uint32_t starts_run;
+    /**
+     * Minimal samples drawn by the hypothesis search of correspondence registration (0 when
+     * none ran).
+     */
+    uint32_t hypotheses;
+    /**
+     * Starts whose result is the returned pose (within 3 standard errors), itself included.
+     */
+    uint32_t agreeing_starts;
 } sie_summary;
 
 /**
@@ -612,7 +765,19 @@ sie_status sie_context_set_cost_function(struct sie_context *ctx, uint32_t cost,
 sie_status sie_context_set_metric(struct sie_context *ctx, uint32_t metric);
 
 /**
- * Caps the number of updates (>= 1). Default: 200.
+ * Selects where SIE starts (a `sie_starts`): AUTOMATIC runs SIE from several starts and keeps
+ * the most significant result (`sie_summary.start`, `starts_run`, `agreeing_starts` report
+ * the search), INITIAL_GUESS runs once from the initial guess (the paper's method).
+ * Default: AUTOMATIC.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context.
+ */
+sie_status sie_context_set_starts(struct sie_context *ctx, uint32_t starts);
+
+/**
+ * Caps the number of updates of each start (>= 1; with SIE_STARTS_AUTOMATIC several starts
+ * run, and `sie_summary.iterations` counts the updates of all of them). Default: 200.
  *
  * # Safety
  * `ctx` is NULL or a live context.

@@ -152,6 +152,54 @@ pub enum sie_stop_reason {
     Cancelled = 4,
 }
 
+/// Where SIE starts (`sie_context_set_starts`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sie_starts {
+    /// Several starts, the most significant result is kept (the default). Correspondences:
+    /// the initial guess and the best poses of a threshold-free hypothesis search. Clouds: the
+    /// initial guess with the paper's beta0, with a narrow beta0, and after a scale-free (L1)
+    /// lead. Applies to the SIE cost with the automatic initial beta; baseline costs and a
+    /// fixed initial beta (`sie_context_set_regularizer`) run once from the initial guess.
+    Automatic = 0,
+    /// One run from the initial guess: the paper's method as published.
+    InitialGuess = 1,
+}
+
+/// How far to trust a registration (`sie_summary.verdict`), from the evidence in the other
+/// quality fields of `sie_summary`. `converged` only says that the iterations settled; this
+/// says whether the data support the pose they settled at.
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sie_verdict {
+    /// No result (a summary that was never filled).
+    None = 0,
+    /// The evidence supports the pose: a significant inlier cluster, a pose the inliers
+    /// constrain in every direction, no other start ending elsewhere nearly as significant and
+    /// (clouds) inlier residuals no wider than the target points' spacing. Use it.
+    Good = 1,
+    /// Registered, but some of that evidence is weak (see significance, conditioning,
+    /// sigma_to_spacing, margin): check the pose before use, or retry from another guess.
+    Doubtful = 2,
+    /// No inlier cluster stands out from the background of chance matches at the fitted scale:
+    /// the data do not support this pose. Reject it.
+    Unsupported = 3,
+}
+
+/// Which start the returned transform came from (`sie_summary.start`).
+#[repr(u32)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum sie_start_kind {
+    /// The caller's initial guess (the identity when none was given) with the paper's beta0.
+    InitialGuess = 0,
+    /// The initial guess with beta0 far below the RMS of the initial residuals (clouds).
+    NarrowBeta = 1,
+    /// A scale-free (L1) run from the initial guess, then SIE (clouds).
+    ScaleFreeLead = 2,
+    /// A pose found by the hypothesis search (correspondences).
+    Hypothesis = 3,
+}
+
 /// Which cloud a noise callback call is about (its `cloud` argument).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -228,6 +276,38 @@ pub struct sie_summary {
     pub histogram_count: u32,
     /// True when stop_reason is SIE_STOP_REASON_CONVERGED.
     pub converged: bool,
+    /// How far to trust the result, a `sie_verdict`: GOOD, DOUBTFUL or UNSUPPORTED. The fields
+    /// below up to `margin` are its evidence.
+    pub verdict: u32,
+    /// Which start the transform came from, a `sie_start_kind`.
+    pub start: u32,
+    /// Significance of the inlier cluster at the returned transform, at the scale of the
+    /// fitted sigma: -ln of a bound on the probability that chance matches form a cluster that
+    /// large (nats; 0 when nothing stands out from chance, which makes the verdict UNSUPPORTED).
+    pub significance: f64,
+    /// How well the weighted inliers constrain the pose at the last update, 0..1 (the least
+    /// over the most constrained direction); below 1e-3 (inliers on one plane or one line) the
+    /// verdict is not GOOD.
+    pub conditioning: f64,
+    /// Fitted sigma over the typical distance between neighbouring target points (clouds; 0 for
+    /// correspondences, which have no spacing). Above 1 the verdict is not GOOD. DBL_MAX when
+    /// that spacing is 0 (most target points have an exact duplicate).
+    pub sigma_to_spacing: f64,
+    /// significance / runner_up_significance: how much more significant the result is than the
+    /// best start that ended at another pose; below 2 the verdict is not GOOD. 0 when no start
+    /// ended elsewhere (runner_up_significance is then 0): nothing to compare with, so no limit
+    /// (the value would be infinite; outputs are always finite).
+    pub margin: f64,
+    /// The largest significance among starts that ended at another pose (0: none did).
+    pub runner_up_significance: f64,
+    /// Starts SIE was run from (1 with SIE_STARTS_INITIAL_GUESS, a baseline cost or a fixed
+    /// initial beta).
+    pub starts_run: u32,
+    /// Minimal samples drawn by the hypothesis search of correspondence registration (0 when
+    /// none ran).
+    pub hypotheses: u32,
+    /// Starts whose result is the returned pose (within 3 standard errors), itself included.
+    pub agreeing_starts: u32,
 }
 
 /// One fitted SIE histogram model (`sie_context_get_histogram`, `sie_estimate_inliers`).
@@ -648,6 +728,7 @@ c_enum_values!(sie_cost_function: Sie, L2, TruncatedL2, Lp, StudentT, Huber, Cau
 c_enum_values!(sie_metric: PointToPoint, PointToPlane);
 c_enum_values!(sie_noise_model: Constant, QuadraticDepth);
 c_enum_values!(sie_histogram_mode: Pooled, PerColumn);
+c_enum_values!(sie_starts: Automatic, InitialGuess);
 
 #[cfg(test)]
 mod tests;

@@ -5,9 +5,10 @@
 use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, write_buffer, write_output};
 use super::{
-    ContextState, sie_context, sie_model, sie_status, sie_stop_reason, sie_summary, sie_trace_entry,
+    ContextState, sie_context, sie_model, sie_start_kind, sie_status, sie_stop_reason, sie_summary,
+    sie_trace_entry, sie_verdict,
 };
-use crate::registration::{RegistrationResult, StopReason};
+use crate::registration::{RegistrationResult, StartKind, StopReason, Verdict};
 use crate::sie::HistogramModel;
 
 fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> {
@@ -34,6 +35,18 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StopReason::Degenerate => sie_stop_reason::Degenerate,
         StopReason::Cancelled => sie_stop_reason::Cancelled,
     };
+    let (quality, search) = (&result.quality, &result.search);
+    let verdict = match quality.verdict {
+        Verdict::Good => sie_verdict::Good,
+        Verdict::Doubtful => sie_verdict::Doubtful,
+        Verdict::Unsupported => sie_verdict::Unsupported,
+    };
+    let start = match search.start {
+        StartKind::InitialGuess => sie_start_kind::InitialGuess,
+        StartKind::NarrowBeta => sie_start_kind::NarrowBeta,
+        StartKind::ScaleFreeLead => sie_start_kind::ScaleFreeLead,
+        StartKind::Hypothesis => sie_start_kind::Hypothesis,
+    };
     sie_summary {
         sigma: first_three(&result.sigma),
         beta: first_three(&result.beta),
@@ -48,6 +61,26 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         stop_reason: stop_reason as u32,
         histogram_count: u32::try_from(result.histograms.len()).unwrap_or(u32::MAX),
         converged: result.converged,
+        verdict: verdict as u32,
+        start: start as u32,
+        significance: quality.significance,
+        conditioning: quality.conditioning,
+        // Outputs are finite (issue 11): a zero spacing is reported as the largest double, and
+        // an unbounded margin (no start ended elsewhere) as 0.
+        sigma_to_spacing: if quality.sigma_to_spacing == f64::INFINITY {
+            f64::MAX
+        } else {
+            quality.sigma_to_spacing
+        },
+        margin: if quality.margin.is_finite() {
+            quality.margin
+        } else {
+            0.0
+        },
+        runner_up_significance: search.runner_up_significance,
+        starts_run: search.starts_run,
+        hypotheses: search.hypotheses,
+        agreeing_starts: search.agreeing_starts,
     }
 }
 

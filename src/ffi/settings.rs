@@ -7,11 +7,11 @@ use super::boundary::{FfiError, boundary};
 use super::callback::{NoiseCallback, ProgressCallback};
 use super::{
     CEnum, sie_context, sie_cost_function, sie_histogram_mode, sie_metric, sie_noise_fn, sie_noise_model,
-    sie_progress_fn, sie_status,
+    sie_progress_fn, sie_starts, sie_status,
 };
 use crate::cost::CostFunction;
 use crate::noise::NoiseModel;
-use crate::registration::{Metric, RegistrationConfig};
+use crate::registration::{Metric, RegistrationConfig, Starts};
 use crate::sie::{HistogramMode, NoiseShape};
 
 /// Student-t degrees of freedom when the caller passes 0 (Kerl et al. 2013).
@@ -90,7 +90,29 @@ pub unsafe extern "C" fn sie_context_set_metric(ctx: *mut sie_context, metric: u
     }
 }
 
-/// Caps the number of updates (>= 1). Default: 200.
+/// Selects where SIE starts (a `sie_starts`): AUTOMATIC runs SIE from several starts and keeps
+/// the most significant result (`sie_summary.start`, `starts_run`, `agreeing_starts` report
+/// the search), INITIAL_GUESS runs once from the initial guess (the paper's method).
+/// Default: AUTOMATIC.
+///
+/// # Safety
+/// `ctx` is NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_starts(ctx: *mut sie_context, starts: u32) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.starts = match sie_starts::decode(starts, "starts")? {
+                sie_starts::Automatic => Starts::Automatic,
+                sie_starts::InitialGuess => Starts::InitialGuess,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Caps the number of updates of each start (>= 1; with SIE_STARTS_AUTOMATIC several starts
+/// run, and `sie_summary.iterations` counts the updates of all of them). Default: 200.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context.

@@ -11,7 +11,9 @@ use super::boundary::{FfiError, boundary};
 use super::input::{read_points, read_transform, row_major, write_buffer};
 use super::*;
 use crate::cost::CostFunction;
-use crate::registration::{Metric, RegistrationResult, StopReason, TraceEntry};
+use crate::registration::{
+    Metric, Quality, RegistrationResult, SearchReport, StartKind, Starts, StopReason, TraceEntry, Verdict,
+};
 use crate::sie::shape::GeneralisedGaussian;
 use crate::sie::{HistogramMode, HistogramModel, NoiseShape};
 
@@ -99,8 +101,21 @@ fn sample_result() -> RegistrationResult {
         correspondences: vec![4, -1, 2],
         histograms: vec![histogram()],
         times: Default::default(),
-        search: Default::default(),
-        quality: Default::default(),
+        search: SearchReport {
+            start: StartKind::ScaleFreeLead,
+            hypotheses: 0,
+            starts_run: 3,
+            significance: 41.5,
+            agreeing_starts: 2,
+            runner_up_significance: 12.0,
+        },
+        quality: Quality {
+            verdict: Verdict::Doubtful,
+            significance: 41.5,
+            conditioning: 0.25,
+            sigma_to_spacing: 0.75,
+            margin: 41.5 / 12.0,
+        },
         trace: vec![TraceEntry {
             iteration: 1,
             annealing: true,
@@ -283,6 +298,14 @@ fn setters_store_valid_values() {
         assert_eq!(sie_context_set_seed(ctx.0, 42), sie_status::Ok);
         assert_eq!(sie_context_set_trace(ctx.0, true), sie_status::Ok);
         assert_eq!(sie_context_set_max_iterations(ctx.0, 9), sie_status::Ok);
+        assert_eq!(
+            sie_context_set_starts(ctx.0, sie_starts::InitialGuess as u32),
+            sie_status::Ok
+        );
+        assert_eq!(ctx.config().starts, Starts::InitialGuess);
+        assert_eq!(sie_context_set_starts(ctx.0, 0), sie_status::Ok);
+        assert_eq!(ctx.config().starts, Starts::Automatic);
+        assert_eq!(sie_context_set_starts(ctx.0, 1), sie_status::Ok);
     }
     let config = ctx.config();
     assert_eq!(
@@ -292,9 +315,10 @@ fn setters_store_valid_values() {
             config.threads,
             config.seed,
             config.record_trace,
-            config.max_iterations
+            config.max_iterations,
+            config.starts
         ),
-        (500, 20, 1, 42, true, 9)
+        (500, 20, 1, 42, true, 9, Starts::InitialGuess)
     );
 }
 
@@ -317,6 +341,11 @@ fn rejected_setters_keep_the_old_config() {
         rejected(sie_context_set_cost_function(ctx.0, 5, -1.0), "-1");
         rejected(sie_context_set_cost_function(ctx.0, 3, 3.0), "Lp { p: 3.0 }");
         rejected(sie_context_set_metric(ctx.0, 2), "metric = 2");
+        rejected(
+            sie_context_set_starts(ctx.0, 2),
+            "starts = 2 is not a known value (valid: 0..=1)",
+        );
+        rejected(sie_context_set_starts(ctx.0, u32::MAX), "starts = 4294967295");
         rejected(sie_context_set_max_iterations(ctx.0, 0), "max_iterations");
         rejected(
             sie_context_set_convergence(ctx.0, -1.0, 0.0),
@@ -358,6 +387,7 @@ fn documented_defaults_match_the_core() {
     assert_eq!(config.threads, 0);
     assert_eq!(config.seed, 0x5EED);
     assert!(!config.record_trace);
+    assert_eq!(config.starts, Starts::Automatic);
 }
 
 #[test]
@@ -989,6 +1019,22 @@ fn getters_copy_the_stored_result() {
         (summary.iterations, summary.histogram_count, summary.converged),
         (7, 1, false)
     );
+    assert_eq!(summary.verdict, sie_verdict::Doubtful as u32);
+    assert_eq!(summary.start, sie_start_kind::ScaleFreeLead as u32);
+    assert_eq!(
+        (
+            summary.significance,
+            summary.conditioning,
+            summary.sigma_to_spacing,
+            summary.margin,
+            summary.runner_up_significance
+        ),
+        (41.5, 0.25, 0.75, 41.5 / 12.0, 12.0)
+    );
+    assert_eq!(
+        (summary.starts_run, summary.hypotheses, summary.agreeing_starts),
+        (3, 0, 2)
+    );
 
     let mut probabilities = [0.0; 3];
     let mut correspondences = [0i64; 3];
@@ -1021,6 +1067,81 @@ fn getters_copy_the_stored_result() {
     assert_eq!(trace[0].transform[11], -0.5);
     assert_eq!(trace[0].transform[15], 1.0);
     assert_eq!(trace[1], sie_trace_entry::default());
+}
+
+/// Every verdict and start kind maps to its C value; the infinite values the core uses for "no
+/// start ended elsewhere" and "zero spacing" come out finite (outputs are never inf or NaN).
+#[test]
+fn summary_encodes_verdicts_starts_and_unbounded_values_finitely() {
+    let ctx = Context::new();
+    let cases = [
+        (
+            Verdict::Good,
+            StartKind::InitialGuess,
+            sie_verdict::Good,
+            sie_start_kind::InitialGuess,
+        ),
+        (
+            Verdict::Doubtful,
+            StartKind::NarrowBeta,
+            sie_verdict::Doubtful,
+            sie_start_kind::NarrowBeta,
+        ),
+        (
+            Verdict::Unsupported,
+            StartKind::Hypothesis,
+            sie_verdict::Unsupported,
+            sie_start_kind::Hypothesis,
+        ),
+    ];
+    for (verdict, start, c_verdict, c_start) in cases {
+        let mut result = sample_result();
+        result.quality = Quality {
+            verdict,
+            significance: 7.0,
+            conditioning: 0.5,
+            sigma_to_spacing: f64::INFINITY,
+            margin: f64::INFINITY,
+        };
+        result.search = SearchReport {
+            start,
+            hypotheses: 512,
+            starts_run: 1,
+            significance: 7.0,
+            agreeing_starts: 1,
+            runner_up_significance: 0.0,
+        };
+        ctx.inject_result(result);
+        let mut summary = sie_summary::default();
+        assert_eq!(
+            unsafe { sie_context_get_summary(ctx.0, &mut summary) },
+            sie_status::Ok
+        );
+        assert_eq!(
+            (summary.verdict, summary.start),
+            (c_verdict as u32, c_start as u32)
+        );
+        assert_eq!((summary.margin, summary.runner_up_significance), (0.0, 0.0));
+        assert_eq!(summary.sigma_to_spacing, f64::MAX);
+        assert_eq!((summary.starts_run, summary.hypotheses), (1, 512));
+    }
+    // A zeroed summary reads "no verdict", as its stop reason reads "none".
+    assert_eq!(sie_summary::default().verdict, sie_verdict::None as u32);
+}
+
+/// The summary is caller-allocated: its layout is the ABI. The fields added in 0.2 follow the
+/// 0.1 ones without moving them, u32 pairs before the doubles so no padding is left inside.
+#[test]
+fn summary_layout_is_the_documented_one() {
+    use core::mem::{offset_of, size_of};
+    assert_eq!(offset_of!(sie_summary, converged), 116);
+    assert_eq!(offset_of!(sie_summary, verdict), 120);
+    assert_eq!(offset_of!(sie_summary, start), 124);
+    assert_eq!(offset_of!(sie_summary, significance), 128);
+    assert_eq!(offset_of!(sie_summary, runner_up_significance), 160);
+    assert_eq!(offset_of!(sie_summary, starts_run), 168);
+    assert_eq!(offset_of!(sie_summary, agreeing_starts), 176);
+    assert_eq!(size_of::<sie_summary>(), 184);
 }
 
 #[test]
