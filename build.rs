@@ -1,7 +1,7 @@
 //! Build script: only gives the shared library a versioned soname (cargo has no setting for it).
 //!
 //! The ABI version is `0.<minor>` while the major version is 0 (every 0.x minor release may
-//! break the ABI) and `<major>` from 1.0 on, so `libsie.so.0.1` for 0.1.z. The root
+//! break the ABI) and `<major>` from 1.0 on, so `libsie.so.0.2` for 0.2.z. The root
 //! CMakeLists.txt installs the file under that name, with a `libsie.so` link for the linker.
 
 fn main() {

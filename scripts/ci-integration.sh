@@ -87,6 +87,11 @@ if [ ${#missing[@]} -gt 0 ]; then
       "${missing[@]}" >/dev/null || { echo "integration: 0 passed, 1 failed"; exit 1; }
 fi
 
+# The library's version (Cargo.toml) and its ABI version: 0.<minor> before 1.0 (the soname's).
+version=$(sed -n 's/^version = "\([0-9.]*\)"/\1/p' Cargo.toml | head -1)
+minor=$(cut -d. -f2 <<<"$version")
+abi=0.$minor
+
 mkdir -p "$build"
 # Developers share one working tree: one integration run at a time per build directory.
 exec 9>"$build/.lock"
@@ -100,9 +105,9 @@ rm -rf "$prefix"
 step "install into $prefix" cmake --install "$build/sie"
 
 check_soname() {
-  readelf -d "$prefix/lib/libsie.so.0.1.0" | grep -q 'SONAME.*\[libsie.so.0.1\]' &&
-    [ "$(readlink "$prefix/lib/libsie.so.0.1")" = libsie.so.0.1.0 ] &&
-    [ "$(readlink "$prefix/lib/libsie.so")" = libsie.so.0.1 ] && [ -f "$prefix/lib/libsie.a" ]
+  readelf -d "$prefix/lib/libsie.so.$version" | grep -q "SONAME.*\[libsie.so.$abi\]" &&
+    [ "$(readlink "$prefix/lib/libsie.so.$abi")" = "libsie.so.$version" ] &&
+    [ "$(readlink "$prefix/lib/libsie.so")" = "libsie.so.$abi" ] && [ -f "$prefix/lib/libsie.a" ]
 }
 step "versioned soname and links" check_soname
 step "install: bin/sie (the CLI)" "$prefix/bin/sie" --version
@@ -112,18 +117,25 @@ step "bench_sequences quick (12 frames of 2000 points, frame-to-frame and frame-
   cargo run --release --locked --quiet --example bench_sequences -- quick
 
 # ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
-step "consumer: configure with find_package(sie 0.1)" \
-  cmake -S tests/cmake-consumer -B "$build/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DSIE_REQUESTED_VERSION=0.1
+step "consumer: configure with find_package(sie $abi)" \
+  cmake -S tests/cmake-consumer -B "$build/consumer" -DCMAKE_PREFIX_PATH="$prefix" -DSIE_REQUESTED_VERSION="$abi"
 step "consumer: build (sie::sie, sie::sie_static)" cmake --build "$build/consumer" -j "$jobs"
 counted "ctest: consumer" ctest --test-dir "$build/consumer" --output-on-failure
 
+# Another minor version may have another ABI: the previous one (what a consumer written for it
+# asks for) and the next one are both refused.
+other_minors=("0.$((minor + 1))")
+[ "$minor" -gt 0 ] && other_minors=("0.$((minor - 1))" "${other_minors[@]}")
 refuses_other_minor() {
-  rm -rf "$build/consumer-0.2"
-  ! cmake -S tests/cmake-consumer -B "$build/consumer-0.2" -DCMAKE_PREFIX_PATH="$prefix" \
-    -DSIE_REQUESTED_VERSION=0.2 >"$build/consumer-0.2.log" 2>&1 &&
-    grep -q 'compatible' "$build/consumer-0.2.log"
+  local other
+  for other in "${other_minors[@]}"; do
+    rm -rf "$build/consumer-$other"
+    ! cmake -S tests/cmake-consumer -B "$build/consumer-$other" -DCMAKE_PREFIX_PATH="$prefix" \
+      -DSIE_REQUESTED_VERSION="$other" >"$build/consumer-$other.log" 2>&1 &&
+      grep -q 'compatible' "$build/consumer-$other.log" || return 1
+  done
 }
-step "consumer: find_package(sie 0.2) is refused (SameMinorVersion)" refuses_other_minor
+step "consumer: find_package(sie ${other_minors[*]}) is refused (SameMinorVersion)" refuses_other_minor
 
 pkg_config_build() {
   local flags
@@ -208,7 +220,6 @@ else
 fi
 
 # ---- Python: pip builds libsie into the package; wheel into a clean venv; Open3D, Dask -------------
-version=$(sed -n 's/^version = "\([0-9.]*\)"/\1/p' Cargo.toml | head -1)
 venv=$build/venv
 python_setup() {
   [ -x "$venv/bin/python" ] || python3 -m venv "$venv" || return 1
@@ -242,7 +253,7 @@ wheel_in_clean_venv() {
   wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-linux_*.whl) || return 1
   local contents
   contents=$("$venv/bin/python" -m zipfile -l "$wheel") &&
-    grep -q 'sie/libsie.so.0.1 ' <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents" || return 1
+    grep -q "sie/libsie.so.$abi " <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents" || return 1
   python3 -m venv "$build/clean-venv" || return 1
   # No Rust, no compiler, no repository: a bare PATH, an empty HOME (no ~/.cargo), another cwd.
   (

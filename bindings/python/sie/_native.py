@@ -12,9 +12,9 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
-# The ABI this module is written against: sie.h 0.1 (soname libsie.so.0.1).
+# The ABI this module is written against: sie.h 0.2 (soname libsie.so.0.2).
 ABI_MAJOR = 0
-ABI_MINOR = 1
+ABI_MINOR = 2
 SONAME = f"libsie.so.{ABI_MAJOR}.{ABI_MINOR}" if ABI_MAJOR == 0 else f"libsie.so.{ABI_MAJOR}"
 
 c_double_p = ctypes.POINTER(ctypes.c_double)
@@ -221,6 +221,6 @@ def load_library() -> ctypes.CDLL:
         return library
     raise ImportError(
         "libsie not found: `pip install ./bindings/python` builds it into the package (needs the Rust "
-        "toolchain), a wheel carries it; or set SIE_LIBRARY to the path of libsie.so.0.1. Tried: "
+        "toolchain), a wheel carries it; or set SIE_LIBRARY to the path of " + SONAME + ". Tried: "
         + "; ".join(errors or ["nothing"])
     )

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import sie
+from sie import _native
 
 # ---- synthetic data --------------------------------------------------------------------------
 
@@ -125,7 +126,7 @@ def test_package_is_typed():
     assert (package / "py.typed").is_file()
     if os.environ.get("SIE_EXPECT_BUNDLED") == "1":
         # Installed with pip: the library inside the package is the one loaded.
-        assert Path(sie._lib._name).resolve() == (package / "libsie.so.0.1").resolve()
+        assert Path(sie._lib._name).resolve() == (package / _native.SONAME).resolve()
 
 
 def test_enums_print_as_names():
@@ -591,14 +592,14 @@ def test_library_search_order():
     loaded = Path(sie._lib._name)
     base = {k: v for k, v in os.environ.items() if k not in ("SIE_LIBRARY", "LD_LIBRARY_PATH")}
     # An explicit SIE_LIBRARY that does not exist is an error, not a silent fallback.
-    missing = _import_in_subprocess({**base, "SIE_LIBRARY": "/nonexistent/libsie.so.0.1"})
+    missing = _import_in_subprocess({**base, "SIE_LIBRARY": f"/nonexistent/{_native.SONAME}"})
     assert missing.returncode != 0 and "libsie not found" in missing.stderr
-    assert "/nonexistent/libsie.so.0.1" in missing.stderr
+    assert f"/nonexistent/{_native.SONAME}" in missing.stderr
     if loaded.is_absolute():
         # Without SIE_LIBRARY, the soname is found through the dynamic loader's path.
         found = _import_in_subprocess({**base, "LD_LIBRARY_PATH": str(loaded.parent)})
         assert found.returncode == 0, found.stderr
-        assert found.stdout.strip() in ("libsie.so.0.1", str(loaded))
+        assert found.stdout.strip() in (_native.SONAME, str(loaded))
 
 
 def test_type_hints_serve_a_strict_mypy_user(tmp_path):
