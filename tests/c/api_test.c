@@ -299,6 +299,7 @@ static void test_null_context(void) {
     CHECK(sie_context_last_error(NULL) != NULL);
     EXPECT(none, sie_context_set_cost_function(NULL, SIE_COST_FUNCTION_L2, 0.0), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_metric(NULL, SIE_METRIC_POINT_TO_POINT), SIE_STATUS_NULL_ARGUMENT);
+    EXPECT(none, sie_context_set_starts(NULL, SIE_STARTS_AUTOMATIC), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_max_iterations(NULL, 10), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_convergence(NULL, 1e-6, 1e-6), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_set_noise_model(NULL, SIE_NOISE_MODEL_CONSTANT), SIE_STATUS_NULL_ARGUMENT);
@@ -345,6 +346,12 @@ static void test_setters(sie_context *ctx) {
     EXPECT(ctx, sie_context_set_metric(ctx, 2), SIE_STATUS_INVALID_ARGUMENT);
     CHECK(error_contains(ctx, "metric = 2"));
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
+
+    EXPECT(ctx, sie_context_set_starts(ctx, 2), SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "starts = 2"));
+    EXPECT(ctx, sie_context_set_starts(ctx, 0xFFFFFFFFu), SIE_STATUS_INVALID_ARGUMENT);
+    EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_INITIAL_GUESS), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_AUTOMATIC), SIE_STATUS_OK); /* the default */
 
     EXPECT(ctx, sie_context_set_max_iterations(ctx, 0), SIE_STATUS_INVALID_ARGUMENT);
     CHECK(error_contains(ctx, "max_iterations"));
@@ -518,6 +525,43 @@ static void test_estimate_errors(sie_context *ctx) {
     CHECK(probabilities[0] == SENTINEL && probabilities[1] == SENTINEL);
 }
 
+static int finite_non_negative(double value) { return isfinite(value) && value >= 0.0; }
+
+/* The verdict and its evidence: valid codes, finite values (never inf or NaN), and the
+ * relations the header documents between them. */
+static void check_quality(const sie_summary *s, int correspondences, const char *label) {
+    printf("%s: verdict %u, start %u, significance %.1f, conditioning %.3g, sigma/spacing %.3g, margin %.3g, "
+           "%u starts (%u agreeing), %u hypotheses, runner-up %.1f\n",
+           label, s->verdict, s->start, s->significance, s->conditioning, s->sigma_to_spacing, s->margin,
+           s->starts_run, s->agreeing_starts, s->hypotheses, s->runner_up_significance);
+    CHECK(s->verdict == SIE_VERDICT_GOOD || s->verdict == SIE_VERDICT_DOUBTFUL ||
+          s->verdict == SIE_VERDICT_UNSUPPORTED);
+    CHECK(s->start <= SIE_START_KIND_HYPOTHESIS);
+    CHECK(finite_non_negative(s->significance) && finite_non_negative(s->conditioning) &&
+          finite_non_negative(s->sigma_to_spacing) && finite_non_negative(s->margin) &&
+          finite_non_negative(s->runner_up_significance));
+    CHECK(s->conditioning <= 1.0);
+    CHECK(s->starts_run >= 1 && s->agreeing_starts >= 1 && s->agreeing_starts <= s->starts_run);
+    /* 0 encodes "no start ended elsewhere"; otherwise the ratio of the significances. */
+    if (s->runner_up_significance == 0.0) {
+        CHECK(s->margin == 0.0);
+    } else {
+        CHECK(fabs(s->margin - s->significance / s->runner_up_significance) <= 1e-12 * s->margin);
+    }
+    /* Nothing to judge against chance means no support. */
+    CHECK((s->significance > 0.0) == (s->verdict != SIE_VERDICT_UNSUPPORTED));
+    if (s->verdict == SIE_VERDICT_GOOD) {
+        CHECK(s->conditioning >= 1e-3 && s->sigma_to_spacing <= 1.0);
+        CHECK(s->margin == 0.0 || s->margin >= 2.0);
+    }
+    if (correspondences) {
+        CHECK(s->sigma_to_spacing == 0.0);
+        CHECK(s->start == SIE_START_KIND_INITIAL_GUESS || s->start == SIE_START_KIND_HYPOTHESIS);
+    } else {
+        CHECK(s->start != SIE_START_KIND_HYPOTHESIS && s->hypotheses == 0);
+    }
+}
+
 /* The registration result must match `truth`; checks every getter on it. */
 static void check_pair_result(sie_context *ctx, const double T[16], const char *label) {
     sie_summary summary;
@@ -546,6 +590,12 @@ static void check_pair_result(sie_context *ctx, const double T[16], const char *
     CHECK(summary.sigma[1] == 0.0 && summary.beta[2] == 0.0);
     CHECK(summary.inlier_fraction > 0.6 && summary.inlier_fraction < 0.9);
     CHECK(summary.rmse > 0.0 && summary.rmse < 0.05);
+    /* 800 inliers at 5 mm among 200 uniform outliers: clearly supported, found by the
+     * hypothesis search of the automatic starts (the default). */
+    check_quality(&summary, 1, label);
+    CHECK(summary.verdict == SIE_VERDICT_GOOD);
+    CHECK(summary.significance > 100.0);
+    CHECK(summary.hypotheses > 0);
 
     /* Size query, too-small buffer (untouched), then the real copy. */
     EXPECT(ctx, sie_context_get_inlier_probabilities(ctx, NULL, 0, &len), SIE_STATUS_OK);
@@ -655,7 +705,9 @@ static void test_correspondence_registration(sie_context *ctx) {
     test_no_result(ctx);
 }
 
-static void check_cloud_result(sie_context *ctx, sie_status status, const double T[16], const char *label) {
+/* expected_starts: 3 for SIE's automatic starts on clouds, 1 for a single run. */
+static void check_cloud_result(sie_context *ctx, sie_status status, const double T[16], const char *label,
+                               uint32_t expected_starts) {
     sie_summary summary;
     double error = max_abs_difference(T, cloud_truth, 16);
     EXPECT(ctx, status, SIE_STATUS_OK);
@@ -670,6 +722,15 @@ static void check_cloud_result(sie_context *ctx, sie_status status, const double
     CHECK(summary.source_count == CLOUD);
     CHECK(summary.correspondence_count > CLOUD / 2 && summary.correspondence_count <= CLOUD);
     CHECK(summary.inlier_fraction > 0.5);
+    check_quality(&summary, 0, label);
+    CHECK(summary.starts_run == expected_starts);
+    if (summary.histogram_count > 0) {
+        /* SIE on a clean room corner: a pose every direction of which the three planes fix. */
+        CHECK(summary.verdict == SIE_VERDICT_GOOD);
+        CHECK(summary.sigma_to_spacing > 0.0);
+    } else {
+        CHECK(summary.start == SIE_START_KIND_INITIAL_GUESS && summary.agreeing_starts == 1 && summary.margin == 0.0);
+    }
 }
 
 static void test_cloud_registration(sie_context *ctx) {
@@ -681,23 +742,23 @@ static void test_cloud_registration(sie_context *ctx) {
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
     status = sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
                                   sizeof(padded_point), NULL, T);
-    check_cloud_result(ctx, status, T, "float clouds, point-to-plane, 16-byte stride");
+    check_cloud_result(ctx, status, T, "float clouds, point-to-plane, 16-byte stride", 3);
 
     status = sie_context_register_with_normals(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point),
                                                &cloud_target_normals[0].x, CLOUD, sizeof(point_normal),
                                                &cloud_target_normals[0].normal_x, sizeof(point_normal), NULL, T);
-    check_cloud_result(ctx, status, T, "float clouds with target normals, 48-byte stride");
+    check_cloud_result(ctx, status, T, "float clouds with target normals, 48-byte stride", 3);
 
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_POINT), SIE_STATUS_OK);
     status = sie_context_register_d(ctx, cloud_source_d, CLOUD, 0, cloud_target_d, CLOUD, 0, IDENTITY, T);
-    check_cloud_result(ctx, status, T, "double clouds, point-to-point");
+    check_cloud_result(ctx, status, T, "double clouds, point-to-point", 3);
 
     /* A baseline cost has no histograms. */
     EXPECT(ctx, sie_context_set_cost_function(ctx, SIE_COST_FUNCTION_HUBER, 0.02), SIE_STATUS_OK);
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
     status = sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
                                   sizeof(padded_point), NULL, T);
-    check_cloud_result(ctx, status, T, "float clouds, Huber");
+    check_cloud_result(ctx, status, T, "float clouds, Huber", 1);
     if (status == SIE_STATUS_OK) {
         sie_summary summary;
         sie_model model;
@@ -833,7 +894,7 @@ static void test_prepared_target(sie_context *ctx) {
     EXPECT(ctx, sie_context_register_to_d(ctx, cloud_source_d, CLOUD, 0, target, NULL, T), SIE_STATUS_OK);
     store(ctx, T, &prepared);
     CHECK(same_result(&direct, &prepared));
-    check_cloud_result(ctx, SIE_STATUS_OK, T, "double source onto a prepared double target, point-to-point");
+    check_cloud_result(ctx, SIE_STATUS_OK, T, "double source onto a prepared double target, point-to-point", 3);
     sie_target_free(target);
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
     EXPECT(ctx, sie_context_set_normal_neighbours(ctx, 12), SIE_STATUS_OK);
@@ -962,48 +1023,112 @@ static int32_t record_progress(void *user_data, const sie_trace_entry *entry) {
     return 0;
 }
 
-/* The progress callback carries the transform reached by each update (row-major), the last one
- * is the returned transform, the recorded trace has the same transforms, and the inlier fraction
- * means what the summary's means. */
+/* The progress callback carries the transform reached by each update (row-major), the recorded
+ * trace has the same transforms, and the inlier fraction means what the summary's means. From
+ * the initial guess alone the last update is the returned transform. With the automatic starts
+ * every start's updates are reported, in order and numbered on (iterations counts them all), and
+ * the returned transform is one of them: the last update of the start that won. */
 static void test_progress_transform(sie_context *ctx) {
     double T[16];
     progress_log log;
     sie_summary summary;
     sie_trace_entry *trace;
-    size_t len = 0;
+    size_t len = 0, i;
+    int automatic;
 
-    memset(&log, 0, sizeof(log));
-    log.rigid = 1;
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
     EXPECT(ctx, sie_context_set_trace(ctx, true), SIE_STATUS_OK);
-    EXPECT(ctx, sie_context_set_progress_callback(ctx, record_progress, &log), SIE_STATUS_OK);
-    EXPECT(ctx,
-           sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
-                                sizeof(padded_point), NULL, T),
-           SIE_STATUS_OK);
-    EXPECT(ctx, sie_context_set_progress_callback(ctx, NULL, NULL), SIE_STATUS_OK);
-    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
-    CHECK(log.calls == summary.iterations && log.last_iteration == summary.iterations);
-    CHECK(log.rigid);
-    CHECK(max_abs_difference(log.last_transform, T, 16) == 0.0);
-    CHECK(max_abs_difference(log.last_transform, cloud_truth, 16) < 0.01);
-    /* Converged: the last update's weights and the result's probabilities barely differ. */
-    CHECK(fabs(log.last_inlier_fraction - summary.inlier_fraction) < 0.01);
-    printf("progress: %u calls, last inlier fraction %.4f, summary %.4f\n", log.calls, log.last_inlier_fraction,
-           summary.inlier_fraction);
+    for (automatic = 0; automatic <= 1; automatic++) {
+        const char *label = automatic ? "automatic starts" : "initial guess";
+        memset(&log, 0, sizeof(log));
+        log.rigid = 1;
+        EXPECT(ctx, sie_context_set_starts(ctx, automatic ? SIE_STARTS_AUTOMATIC : SIE_STARTS_INITIAL_GUESS),
+               SIE_STATUS_OK);
+        EXPECT(ctx, sie_context_set_progress_callback(ctx, record_progress, &log), SIE_STATUS_OK);
+        EXPECT(ctx,
+               sie_context_register(ctx, &cloud_source[0].x, CLOUD, sizeof(padded_point), &cloud_target[0].x, CLOUD,
+                                    sizeof(padded_point), NULL, T),
+               SIE_STATUS_OK);
+        EXPECT(ctx, sie_context_set_progress_callback(ctx, NULL, NULL), SIE_STATUS_OK);
+        EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+        CHECK(log.calls == summary.iterations && log.last_iteration == summary.iterations);
+        CHECK(log.rigid);
+        CHECK(max_abs_difference(T, cloud_truth, 16) < 0.01);
+        check_quality(&summary, 0, label);
+        CHECK(summary.verdict == SIE_VERDICT_GOOD);
+        if (automatic) {
+            CHECK(summary.starts_run == 3);
+        } else {
+            CHECK(summary.starts_run == 1 && summary.start == SIE_START_KIND_INITIAL_GUESS &&
+                  summary.agreeing_starts == 1 && summary.margin == 0.0 && summary.runner_up_significance == 0.0);
+            CHECK(max_abs_difference(log.last_transform, T, 16) == 0.0);
+            /* Converged: the last update's weights and the result's probabilities barely differ. */
+            CHECK(fabs(log.last_inlier_fraction - summary.inlier_fraction) < 0.01);
+        }
+        printf("progress (%s): %u calls, last inlier fraction %.4f, summary %.4f\n", label, log.calls,
+               log.last_inlier_fraction, summary.inlier_fraction);
 
-    EXPECT(ctx, sie_context_get_trace(ctx, NULL, 0, &len), SIE_STATUS_OK);
-    CHECK(len == summary.iterations);
-    trace = (sie_trace_entry *)calloc(len + 1, sizeof(sie_trace_entry));
-    if (trace != NULL && len >= 2) {
-        EXPECT(ctx, sie_context_get_trace(ctx, trace, len, &len), SIE_STATUS_OK);
-        CHECK(max_abs_difference(trace[len - 1].transform, T, 16) == 0.0);
-        /* The first update already moved away from the identity guess. */
-        CHECK(max_abs_difference(trace[0].transform, IDENTITY, 16) > 1e-4);
-        CHECK(trace[len - 1].inlier_fraction == log.last_inlier_fraction);
+        EXPECT(ctx, sie_context_get_trace(ctx, NULL, 0, &len), SIE_STATUS_OK);
+        CHECK(len == summary.iterations);
+        trace = (sie_trace_entry *)calloc(len + 1, sizeof(sie_trace_entry));
+        if (trace != NULL && len >= 2) {
+            int returned_is_an_update = 0, numbered_on = 1;
+            EXPECT(ctx, sie_context_get_trace(ctx, trace, len, &len), SIE_STATUS_OK);
+            for (i = 0; i < len; i++) {
+                numbered_on &= trace[i].iteration == i + 1;
+                returned_is_an_update |= max_abs_difference(trace[i].transform, T, 16) == 0.0;
+            }
+            CHECK(numbered_on);
+            CHECK(returned_is_an_update);
+            CHECK(max_abs_difference(trace[len - 1].transform, log.last_transform, 16) == 0.0);
+            if (!automatic) {
+                CHECK(max_abs_difference(trace[len - 1].transform, T, 16) == 0.0);
+            }
+            /* The first update already moved away from the identity guess. */
+            CHECK(max_abs_difference(trace[0].transform, IDENTITY, 16) > 1e-4);
+            CHECK(trace[len - 1].inlier_fraction == log.last_inlier_fraction);
+        }
+        free(trace);
     }
-    free(trace);
     EXPECT(ctx, sie_context_set_trace(ctx, false), SIE_STATUS_OK);
+}
+
+/* Pairs without any relation (both ends uniform in a cube): no pose is supported. Then the
+ * same with only the initial guess, and the real pairs from it: one start, nothing to compare. */
+static void test_verdicts(sie_context *ctx) {
+    static float unrelated[PAIRS * 3];
+    double T[16];
+    sie_summary summary;
+    size_t i;
+
+    for (i = 0; i < PAIRS * 3; i++) {
+        unrelated[i] = (float)uniform(-1.0, 1.0);
+    }
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, unrelated, 0, PAIRS, NULL, T),
+           SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    check_quality(&summary, 1, "unrelated pairs");
+    CHECK(summary.verdict == SIE_VERDICT_UNSUPPORTED);
+    CHECK(summary.significance == 0.0);
+    CHECK(summary.hypotheses > 0);
+
+    EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_INITIAL_GUESS), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, unrelated, 0, PAIRS, NULL, T),
+           SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    check_quality(&summary, 1, "unrelated pairs, initial guess only");
+    CHECK(summary.verdict == SIE_VERDICT_UNSUPPORTED);
+    CHECK(summary.hypotheses == 0 && summary.starts_run == 1);
+
+    EXPECT(ctx, sie_context_register_correspondences(ctx, pair_source, 0, pair_target, 0, PAIRS, NULL, T),
+           SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_OK);
+    check_quality(&summary, 1, "pairs, initial guess only");
+    CHECK(max_abs_difference(T, pair_truth, 16) < 0.01);
+    CHECK(summary.verdict == SIE_VERDICT_GOOD);
+    CHECK(summary.start == SIE_START_KIND_INITIAL_GUESS && summary.hypotheses == 0 && summary.starts_run == 1 &&
+          summary.agreeing_starts == 1 && summary.margin == 0.0 && summary.runner_up_significance == 0.0);
+    EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_AUTOMATIC), SIE_STATUS_OK);
 }
 
 static void test_cancellation_and_non_finite(sie_context *ctx) {
@@ -1070,6 +1195,7 @@ int main(void) {
     test_noise_callback(ctx);
     test_estimate_inliers(ctx);
     test_progress_transform(ctx);
+    test_verdicts(ctx);
     test_cancellation_and_non_finite(ctx);
 
     sie_context_free(ctx);
