@@ -496,6 +496,11 @@ fn setters_reject_unknown_and_out_of_range_values_and_keep_the_old_setting() {
     // SAFETY: live context and valid buffers.
     unsafe {
         assert_eq!(sie_context_set_max_iterations(ctx.0, 3), sie_status::Ok);
+        // One start, so the cap is the whole run's update count.
+        assert_eq!(
+            sie_context_set_starts(ctx.0, sie_starts::InitialGuess as u32),
+            sie_status::Ok
+        );
         rejected(sie_context_set_cost_function(ctx.0, 99, 0.0), "99");
         rejected(
             sie_context_set_cost_function(ctx.0, sie_cost_function::Huber as u32, -1.0),
@@ -509,8 +514,11 @@ fn setters_reject_unknown_and_out_of_range_values_and_keep_the_old_setting() {
         rejected(sie_context_set_regularizer(ctx.0, 0.0, 1.5), "shrink");
         rejected(sie_context_set_normal_neighbours(ctx.0, 1), "normal_neighbours");
         rejected(sie_context_set_histogram_mode(ctx.0, 2), "2");
+        rejected(sie_context_set_starts(ctx.0, 9), "starts = 9");
         assert_eq!(sie_context_set_threads(null_mut(), 1), sie_status::NullArgument);
-        // The rejected max_iterations = 0 left the earlier 3 in place.
+        assert_eq!(sie_context_set_starts(null_mut(), 0), sie_status::NullArgument);
+        // The rejected max_iterations = 0 left the earlier 3 in place, the rejected starts = 9
+        // the single start.
         let (source, target) = (cloud(N, 0.05), cloud(N, 0.0));
         let mut out = [SENTINEL; 16];
         let status = sie_context_register(
@@ -528,6 +536,33 @@ fn setters_reject_unknown_and_out_of_range_values_and_keep_the_old_setting() {
         let mut summary = sie_summary::default();
         assert_eq!(sie_context_get_summary(ctx.0, &mut summary), sie_status::Ok);
         assert_eq!(summary.iterations, 3);
+        assert_eq!(summary.starts_run, 1);
+        assert_eq!(summary.stop_reason, sie_stop_reason::IterationLimit as u32);
+        // Automatic starts: the cap holds for each start (three SIE runs and the scale-free
+        // lead's), and iterations counts the updates of all of them.
+        assert_eq!(
+            sie_context_set_starts(ctx.0, sie_starts::Automatic as u32),
+            sie_status::Ok
+        );
+        let status = sie_context_register(
+            ctx.0,
+            source.as_ptr().cast(),
+            N,
+            16,
+            target.as_ptr().cast(),
+            N,
+            16,
+            null(),
+            out.as_mut_ptr(),
+        );
+        assert_eq!(status, sie_status::Ok);
+        assert_eq!(sie_context_get_summary(ctx.0, &mut summary), sie_status::Ok);
+        assert_eq!(summary.starts_run, 3);
+        assert!(
+            (9..=12).contains(&summary.iterations),
+            "{} updates from 3 SIE starts and a lead, each capped at 3",
+            summary.iterations
+        );
     }
 }
 
