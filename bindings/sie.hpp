@@ -4,6 +4,7 @@
  *   sie::Context ctx;                                   // SIE cost, point-to-plane, no threshold
  *   sie::Transform T = ctx.align({src, n_src, 16}, {tgt, n_tgt, 16});   // row-major T_target_source
  *   sie::Summary s = ctx.summary();                     // iterations, stop reason, sigma, ...
+ *   if (s.verdict != sie::Verdict::Good) { ... }        // how far the data support the pose
  *
  * - sie::Context owns a sie_context: move-only, freed in the destructor.
  * - Every failing call throws sie::Error carrying the sie::Status and the library's message.
@@ -90,6 +91,34 @@ enum class HistogramMode : std::uint32_t {
     PerColumn = SIE_HISTOGRAM_MODE_PER_COLUMN,
 };
 
+/** Where SIE starts (sie_starts; Context::set_starts). */
+enum class Starts : std::uint32_t {
+    /** Several starts, the most significant result is kept (the default). */
+    Automatic = SIE_STARTS_AUTOMATIC,
+    /** One run from the initial guess (the paper's method). */
+    InitialGuess = SIE_STARTS_INITIAL_GUESS,
+};
+
+/** How far to trust a registration (sie_verdict; Summary::verdict). */
+enum class Verdict : std::uint32_t {
+    /** No result. */
+    None = SIE_VERDICT_NONE,
+    /** The evidence supports the pose: use it. */
+    Good = SIE_VERDICT_GOOD,
+    /** Registered, but some evidence is weak: check it, or retry from another guess. */
+    Doubtful = SIE_VERDICT_DOUBTFUL,
+    /** No inlier cluster stands out from the background: reject the pose. */
+    Unsupported = SIE_VERDICT_UNSUPPORTED,
+};
+
+/** Which start the returned transform came from (sie_start_kind; Summary::start). */
+enum class StartKind : std::uint32_t {
+    InitialGuess = SIE_START_KIND_INITIAL_GUESS,
+    NarrowBeta = SIE_START_KIND_NARROW_BETA,
+    ScaleFreeLead = SIE_START_KIND_SCALE_FREE_LEAD,
+    Hypothesis = SIE_START_KIND_HYPOTHESIS,
+};
+
 enum class StopReason : std::uint32_t {
     None = SIE_STOP_REASON_NONE,
     Converged = SIE_STOP_REASON_CONVERGED,
@@ -120,6 +149,34 @@ inline const char *to_string(StopReason reason) noexcept {
         return "degenerate";
     case StopReason::Cancelled:
         return "cancelled";
+    }
+    return "unknown";
+}
+
+inline const char *to_string(Verdict verdict) noexcept {
+    switch (verdict) {
+    case Verdict::None:
+        return "none";
+    case Verdict::Good:
+        return "good";
+    case Verdict::Doubtful:
+        return "doubtful";
+    case Verdict::Unsupported:
+        return "unsupported";
+    }
+    return "unknown";
+}
+
+inline const char *to_string(StartKind start) noexcept {
+    switch (start) {
+    case StartKind::InitialGuess:
+        return "initial guess";
+    case StartKind::NarrowBeta:
+        return "narrow beta";
+    case StartKind::ScaleFreeLead:
+        return "scale-free lead";
+    case StartKind::Hypothesis:
+        return "hypothesis";
     }
     return "unknown";
 }
@@ -182,7 +239,8 @@ template <typename Scalar> struct PointsView {
 using Points = PointsView<float>;
 using PointsD = PointsView<double>;
 
-/** Summary of the last registration (sie_summary with a typed stop reason). */
+/** Summary of the last registration (sie_summary with a typed stop reason, verdict and start;
+ * the field documentation is in sie.h). */
 struct Summary {
     std::array<double, 3> sigma{};
     std::array<double, 3> beta{};
@@ -198,6 +256,24 @@ struct Summary {
     StopReason stop_reason = StopReason::None;
     std::uint32_t histogram_count = 0;
     bool converged = false;
+    /** How far to trust the pose; the next four fields are its evidence. */
+    Verdict verdict = Verdict::None;
+    /** Significance of the inlier cluster (nats; 0: nothing beyond chance). */
+    double significance = 0.0;
+    /** How well the inliers constrain the pose, 0..1. */
+    double conditioning = 0.0;
+    /** Fitted sigma over the target points' spacing (clouds; 0 for correspondences). */
+    double sigma_to_spacing = 0.0;
+    /** significance / runner_up_significance; 0 when no start ended elsewhere. */
+    double margin = 0.0;
+    /** Which start the transform came from. */
+    StartKind start = StartKind::InitialGuess;
+    std::uint32_t starts_run = 0;
+    std::uint32_t agreeing_starts = 0;
+    /** Minimal samples of the hypothesis search (correspondences; 0 when none ran). */
+    std::uint32_t hypotheses = 0;
+    /** The largest significance among starts that ended at another pose (0: none did). */
+    double runner_up_significance = 0.0;
 };
 
 /** One fitted SIE histogram and its per-bin arrays (sie_context_get_histogram). */
@@ -319,6 +395,13 @@ class Context {
         check(sie_context_set_metric(get(), static_cast<std::uint32_t>(metric)));
         return *this;
     }
+    /** Where SIE starts; Starts::Automatic (the default) runs several and keeps the most
+     * significant result. */
+    Context &set_starts(Starts starts) {
+        check(sie_context_set_starts(get(), static_cast<std::uint32_t>(starts)));
+        return *this;
+    }
+    /** Caps the updates of each start (Summary::iterations counts those of all starts). */
     Context &set_max_iterations(std::uint32_t max_iterations) {
         check(sie_context_set_max_iterations(get(), max_iterations));
         return *this;
@@ -519,6 +602,16 @@ class Context {
         s.stop_reason = static_cast<StopReason>(raw.stop_reason);
         s.histogram_count = raw.histogram_count;
         s.converged = raw.converged;
+        s.verdict = static_cast<Verdict>(raw.verdict);
+        s.significance = raw.significance;
+        s.conditioning = raw.conditioning;
+        s.sigma_to_spacing = raw.sigma_to_spacing;
+        s.margin = raw.margin;
+        s.start = static_cast<StartKind>(raw.start);
+        s.starts_run = raw.starts_run;
+        s.agreeing_starts = raw.agreeing_starts;
+        s.hypotheses = raw.hypotheses;
+        s.runner_up_significance = raw.runner_up_significance;
         return s;
     }
 

@@ -25,6 +25,9 @@ static_assert(!std::is_copy_constructible<sie::Context>::value, "a context owns 
 static_assert(std::is_nothrow_move_constructible<sie::Context>::value, "moves must not throw");
 static_assert(std::is_nothrow_move_assignable<sie::Context>::value, "moves must not throw");
 static_assert(sizeof(sie::Status) == sizeof(sie_status), "same representation as the C enum");
+static_assert(static_cast<std::uint32_t>(sie::Verdict::Unsupported) == SIE_VERDICT_UNSUPPORTED, "the C values");
+static_assert(static_cast<std::uint32_t>(sie::StartKind::Hypothesis) == SIE_START_KIND_HYPOTHESIS, "the C values");
+static_assert(static_cast<std::uint32_t>(sie::Starts::InitialGuess) == SIE_STARTS_INITIAL_GUESS, "the C values");
 
 namespace {
 
@@ -115,8 +118,13 @@ void test_settings_errors() {
     EXPECT_ERROR(sie::Status::InvalidArgument, context.set_cost_function(static_cast<sie::CostFunction>(99)));
     EXPECT_ERROR(sie::Status::InvalidArgument, context.set_regularizer(0.0, 1.5));
     EXPECT_ERROR(sie::Status::InvalidArgument, context.set_normal_neighbours(1));
+    detail = EXPECT_ERROR(sie::Status::InvalidArgument, context.set_starts(static_cast<sie::Starts>(2)));
+    CHECK(contains(detail, "starts = 2"));
     // Valid settings chain.
     context.set_metric(sie::Metric::PointToPlane).set_max_iterations(100).set_seed(7).set_threads(2);
+    context.set_starts(sie::Starts::InitialGuess).set_starts(sie::Starts::Automatic);
+    CHECK(std::string(sie::to_string(sie::Verdict::Doubtful)) == "doubtful");
+    CHECK(std::string(sie::to_string(sie::StartKind::ScaleFreeLead)) == "scale-free lead");
     CHECK(std::string(sie::to_string(sie::Status::Busy)) == sie_status_str(SIE_STATUS_BUSY));
 }
 
@@ -133,6 +141,14 @@ void test_cloud_registration(const Clouds &clouds) {
     // Point-to-plane residuals of two scans with 2 mm noise each: sigma near 2.8 mm.
     CHECK(summary.sigma[0] > 0.0015 && summary.sigma[0] < 0.006);
     CHECK(summary.inlier_fraction > 0.5 && summary.inlier_fraction <= 1.0);
+    // A well-constrained scene with 2 mm noise: GOOD, after the three automatic starts.
+    CHECK(summary.verdict == sie::Verdict::Good);
+    CHECK(summary.starts_run == 3 && summary.agreeing_starts >= 1 && summary.agreeing_starts <= 3);
+    CHECK(summary.start != sie::StartKind::Hypothesis && summary.hypotheses == 0);
+    CHECK(summary.significance > 100.0);
+    CHECK(summary.conditioning > 1e-3 && summary.conditioning <= 1.0);
+    CHECK(summary.sigma_to_spacing > 0.0 && summary.sigma_to_spacing <= 1.0);
+    CHECK(summary.margin == 0.0 ? summary.runner_up_significance == 0.0 : summary.margin >= 2.0);
 
     const std::vector<double> probabilities = context.inlier_probabilities();
     CHECK(probabilities.size() == clouds.source.size());
@@ -239,6 +255,10 @@ void test_correspondences() {
     CHECK(outlier_mean < 0.3);
     const std::vector<std::int64_t> matches = context.correspondences();
     CHECK(matches.size() == 800 && matches[0] == 0 && matches[799] == 799);
+    const sie::Summary summary = context.summary();
+    CHECK(summary.verdict == sie::Verdict::Good);
+    CHECK(summary.hypotheses > 0 && summary.sigma_to_spacing == 0.0 && summary.significance > 0.0);
+    CHECK(summary.start == sie::StartKind::InitialGuess || summary.start == sie::StartKind::Hypothesis);
 
     std::vector<std::array<float, 3>> source_f, target_f;
     for (std::size_t i = 0; i < source.size(); ++i) {
@@ -412,6 +432,42 @@ void test_estimate_inliers() {
     EXPECT_ERROR(sie::Status::InvalidArgument, context.estimate_inliers(residuals.data(), residuals.size(), 0));
 }
 
+// Where SIE starts, and verdicts other than GOOD.
+void test_starts_and_verdicts(const Clouds &clouds) {
+    sie::Context context;
+    context.set_trace(true).set_starts(sie::Starts::InitialGuess);
+    CHECK(close_to(context.align(clouds.source, clouds.target), clouds.truth, 0.2, 0.004));
+    sie::Summary one = context.summary();
+    CHECK(one.starts_run == 1 && one.start == sie::StartKind::InitialGuess && one.agreeing_starts == 1);
+    CHECK(one.margin == 0.0 && one.runner_up_significance == 0.0);
+    CHECK(one.verdict == sie::Verdict::Good);
+    CHECK(context.trace().size() == one.iterations);
+    // The cap holds per start: one start stops at it, the automatic ones make more updates.
+    context.set_max_iterations(4);
+    context.align(clouds.source, clouds.target);
+    CHECK(context.summary().iterations == 4 && context.summary().stop_reason == sie::StopReason::IterationLimit);
+    context.set_starts(sie::Starts::Automatic);
+    context.align(clouds.source, clouds.target);
+    CHECK(context.summary().starts_run == 3);
+    CHECK(context.summary().iterations > 4 && context.summary().iterations <= 16);
+    CHECK(context.trace().size() == context.summary().iterations);
+
+    // Pairs with no relation at all: nothing stands out from chance.
+    scene::Random random(21);
+    std::vector<std::array<double, 3>> source, target;
+    for (int i = 0; i < 600; ++i) {
+        source.push_back({random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)});
+        target.push_back({random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)});
+    }
+    sie::Context pairs;
+    pairs.align_correspondences(source, target);
+    const sie::Summary unrelated = pairs.summary();
+    CHECK(unrelated.verdict == sie::Verdict::Unsupported);
+    CHECK(unrelated.significance == 0.0);
+    std::printf("unrelated pairs: verdict %s, significance %g, %u hypotheses\n", sie::to_string(unrelated.verdict),
+                unrelated.significance, unrelated.hypotheses);
+}
+
 } // namespace
 
 void test_prepared_target(const Clouds &clouds) {
@@ -483,6 +539,7 @@ int main() {
         test_correspondences();
         test_noise_callback(clouds);
         test_progress_cancel_and_skipping(clouds);
+        test_starts_and_verdicts(clouds);
         test_prepared_target(clouds);
         test_estimate_inliers();
     } catch (const std::exception &unexpected) {
