@@ -3,6 +3,7 @@
     import sie
     result = sie.align(source, target)         # N x 3 arrays or open3d PointClouds -> sie.Registration
     result.transform                           # 4 x 4, T_target_source: p_target = T @ p_source
+    result.summary.verdict                     # Verdict.GOOD: use it; DOUBTFUL: check; UNSUPPORTED: reject
     with sie.Context(max_iterations=100) as ctx:   # settings, callbacks, trace, histograms
         result = ctx.align(source, target)
 
@@ -49,11 +50,14 @@ __all__ = [
     "NoiseModel",
     "Registration",
     "SieError",
+    "StartKind",
+    "Starts",
     "Target",
     "Status",
     "StopReason",
     "Summary",
     "TraceEntry",
+    "Verdict",
     "library_version",
 ]
 
@@ -118,6 +122,31 @@ class StopReason(_NamedEnum):
     CANCELLED = 4
 
 
+class Starts(_NamedEnum):
+    """Where SIE starts (Context.set_starts / starts=...)."""
+
+    AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
+    INITIAL_GUESS = 1  # one run from the initial guess (the paper's method)
+
+
+class Verdict(_NamedEnum):
+    """How far to trust a registration (Summary.verdict)."""
+
+    NONE = 0  # no result
+    GOOD = 1  # the evidence supports the pose: use it
+    DOUBTFUL = 2  # registered, but some evidence is weak: check it, or retry from another guess
+    UNSUPPORTED = 3  # no inlier cluster stands out from the background: reject the pose
+
+
+class StartKind(_NamedEnum):
+    """Which start the returned transform came from (Summary.start)."""
+
+    INITIAL_GUESS = 0
+    NARROW_BETA = 1
+    SCALE_FREE_LEAD = 2
+    HYPOTHESIS = 3
+
+
 class Cloud(_NamedEnum):
     SOURCE = 0
     TARGET = 1
@@ -141,7 +170,7 @@ class SieError(Exception):
 
 
 def library_version() -> str:
-    """The loaded library's version, e.g. "0.1.0"."""
+    """The loaded library's version, e.g. "0.2.0"."""
     return str(_lib.sie_version_string().decode())
 
 
@@ -173,6 +202,15 @@ class Summary:
     units; a residual unit per callback unit in general). rmse is always in input units.
     inlier_fraction is sum of P(inlier) over the source points / their number (unmatched
     points count 0), the same quantity as TraceEntry.inlier_fraction.
+
+    verdict says how far to trust the pose (converged only says the iterations settled): GOOD,
+    DOUBTFUL or UNSUPPORTED, from significance (of the inlier cluster against chance, nats; 0:
+    nothing stands out), conditioning (how well the inliers constrain the pose, 0..1; GOOD
+    needs >= 1e-3), sigma_to_spacing (fitted sigma over the target points' spacing; clouds
+    only, GOOD needs <= 1) and margin (significance over runner_up_significance, that of the
+    best start that ended at another pose; GOOD needs >= 2; 0 when no start ended elsewhere).
+    start, starts_run, agreeing_starts and hypotheses describe the search (Starts.AUTOMATIC).
+    iterations counts the updates of every start; max_iterations caps each start.
     """
 
     sigma: Tuple[float, float, float]
@@ -188,6 +226,16 @@ class Summary:
     stop_reason: StopReason
     histogram_count: int
     converged: bool
+    verdict: Verdict
+    significance: float
+    conditioning: float
+    sigma_to_spacing: float
+    margin: float
+    start: StartKind
+    starts_run: int
+    agreeing_starts: int
+    hypotheses: int
+    runner_up_significance: float
 
 
 @dataclass(frozen=True)
@@ -496,7 +544,14 @@ class Context:
         self._check(_lib.sie_context_set_metric(self._handle, int(metric)))
         return self
 
+    def set_starts(self, starts: Starts) -> "Context":
+        """Starts.AUTOMATIC (the default) runs SIE from several starts and keeps the most
+        significant result; Starts.INITIAL_GUESS runs once from the initial guess."""
+        self._check(_lib.sie_context_set_starts(self._handle, int(starts)))
+        return self
+
     def set_max_iterations(self, max_iterations: int) -> "Context":
+        """Caps the updates of each start (Summary.iterations counts those of all starts)."""
         self._check(_lib.sie_context_set_max_iterations(self._handle, int(max_iterations)))
         return self
 
@@ -717,6 +772,9 @@ class Context:
             tuple(raw.sigma), tuple(raw.beta), raw.penalty, raw.noise_shape, raw.inlier_fraction, raw.rmse,
             raw.init_correction, int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
             _enum_or_int(StopReason, raw.stop_reason), int(raw.histogram_count), bool(raw.converged),
+            _enum_or_int(Verdict, raw.verdict), raw.significance, raw.conditioning, raw.sigma_to_spacing,
+            raw.margin, _enum_or_int(StartKind, raw.start), int(raw.starts_run), int(raw.agreeing_starts),
+            int(raw.hypotheses), raw.runner_up_significance,
         )
 
     def _array(self, getter: Any, dtype: npt.DTypeLike, ctype: Any) -> np.ndarray:

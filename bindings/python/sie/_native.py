@@ -38,6 +38,16 @@ class sie_summary(ctypes.Structure):
         ("stop_reason", ctypes.c_uint32),
         ("histogram_count", ctypes.c_uint32),
         ("converged", ctypes.c_bool),
+        ("verdict", ctypes.c_uint32),
+        ("start", ctypes.c_uint32),
+        ("significance", ctypes.c_double),
+        ("conditioning", ctypes.c_double),
+        ("sigma_to_spacing", ctypes.c_double),
+        ("margin", ctypes.c_double),
+        ("runner_up_significance", ctypes.c_double),
+        ("starts_run", ctypes.c_uint32),
+        ("hypotheses", ctypes.c_uint32),
+        ("agreeing_starts", ctypes.c_uint32),
     ]
 
 
@@ -96,6 +106,7 @@ _SIGNATURES = {
     "sie_context_last_error": (ctypes.c_char_p, [_ctx]),
     "sie_context_set_cost_function": (status_t, [_ctx, ctypes.c_uint32, ctypes.c_double]),
     "sie_context_set_metric": (status_t, [_ctx, ctypes.c_uint32]),
+    "sie_context_set_starts": (status_t, [_ctx, ctypes.c_uint32]),
     "sie_context_set_max_iterations": (status_t, [_ctx, ctypes.c_uint32]),
     "sie_context_set_convergence": (status_t, [_ctx, ctypes.c_double, ctypes.c_double]),
     "sie_context_set_noise_model": (status_t, [_ctx, ctypes.c_uint32]),

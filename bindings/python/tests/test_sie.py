@@ -167,18 +167,28 @@ def test_numpy_style_validation(clouds):
 
 def test_progress_carries_the_transform_and_the_summary_inlier_fraction(clouds):
     source, target, _ = clouds
+    # From the initial guess alone the last update's transform is the result: a viewer moving
+    # the cloud with each one ends there.
     seen = []
-    ctx = sie.Context(trace=True)
+    ctx = sie.Context(trace=True, starts=sie.Starts.INITIAL_GUESS)
     ctx.set_progress_callback(seen.append)
     result = ctx.align(source, target)
-    assert len(seen) == result.summary.iterations
+    assert len(seen) == result.summary.iterations and result.summary.starts_run == 1
     assert all(e.transform.shape == (4, 4) and np.array_equal(e.transform[3], [0, 0, 0, 1]) for e in seen)
-    # The last update's transform is the result; a viewer moving the cloud with each one ends there.
     np.testing.assert_array_equal(seen[-1].transform, result.transform)
     assert not np.allclose(seen[0].transform, np.eye(4))  # the first update already moved
     # One meaning of "inlier fraction": progress and summary agree at convergence.
     assert abs(seen[-1].inlier_fraction - result.summary.inlier_fraction) < 0.01
     np.testing.assert_array_equal(ctx.trace()[-1].transform, result.transform)
+    # The automatic starts report every start's updates, numbered on; the result is the last
+    # update of the start that won, one of them.
+    seen.clear()
+    ctx.set_starts(sie.Starts.AUTOMATIC)
+    result = ctx.align(source, target)
+    assert result.summary.starts_run == 3
+    assert [e.iteration for e in seen] == list(range(1, result.summary.iterations + 1))
+    assert any(np.array_equal(e.transform, result.transform) for e in seen)
+    assert [e.iteration for e in ctx.trace()] == [e.iteration for e in seen]
 
 
 def test_module_level_align(clouds):
@@ -230,6 +240,12 @@ def test_cloud_registration_float32(clouds):
     assert np.all((result.inlier_probabilities >= 0) & (result.inlier_probabilities <= 1))
     assert result.correspondences.dtype == np.int64 and result.correspondences.shape == (len(source),)
     assert result.correspondences.max() < len(target)
+    # A clean, well-constrained scene: the evidence supports the pose.
+    assert s.verdict is sie.Verdict.GOOD and str(s.verdict) == "Verdict.GOOD"
+    assert s.significance > 100 and 1e-3 <= s.conditioning <= 1 and 0 < s.sigma_to_spacing <= 1
+    assert s.starts_run == 3 and 1 <= s.agreeing_starts <= 3 and s.hypotheses == 0
+    assert s.start in (sie.StartKind.INITIAL_GUESS, sie.StartKind.NARROW_BETA, sie.StartKind.SCALE_FREE_LEAD)
+    assert s.margin >= 2 if s.runner_up_significance > 0 else s.margin == 0
 
 
 def test_padded_float32_and_float64_agree(clouds):
@@ -339,6 +355,41 @@ def test_paper_simulation_reaches_the_inlier_least_squares_fit(t0):
         p = result.inlier_probabilities
         assert p[:1000].mean() > 0.9 and p[1000:].mean() < 0.2
         np.testing.assert_array_equal(result.correspondences, np.arange(2000))
+
+
+def test_starts_setting_and_the_search_report(clouds):
+    source, target, _ = clouds
+    one = sie.align(source, target, starts=sie.Starts.INITIAL_GUESS).summary
+    assert (one.starts_run, one.start, one.agreeing_starts) == (1, sie.StartKind.INITIAL_GUESS, 1)
+    assert one.margin == 0 and one.runner_up_significance == 0 and one.verdict is sie.Verdict.GOOD
+    # max_iterations caps each start; iterations counts them all.
+    capped = sie.align(source, target, starts=sie.Starts.INITIAL_GUESS, max_iterations=4).summary
+    assert capped.iterations == 4 and capped.stop_reason is sie.StopReason.ITERATION_LIMIT
+    several = sie.align(source, target, max_iterations=4).summary
+    assert several.starts_run == 3 and 4 < several.iterations <= 16
+    with pytest.raises(sie.SieError) as error:
+        sie.Context().set_starts(5)
+    assert error.value.status is sie.Status.INVALID_ARGUMENT and "starts = 5" in error.value.message
+
+
+def test_unrelated_pairs_are_unsupported():
+    rng = np.random.default_rng(11)
+    source, target = rng.uniform(-1, 1, (800, 3)), rng.uniform(-1, 1, (800, 3))
+    s = sie.Context().align_correspondences(source, target).summary
+    assert s.verdict is sie.Verdict.UNSUPPORTED and s.significance == 0
+    assert s.hypotheses > 0 and s.sigma_to_spacing == 0
+    # The paper's simulation, by contrast: the hypothesis search finds the inliers' pose.
+    source, target = paper_simulation(500, 500, 0.01, rigid(1.2, [1, 0, 0], [0.5, 0, 0]), rng)
+    s = sie.Context().align_correspondences(source, target).summary
+    assert s.verdict is sie.Verdict.GOOD and s.hypotheses > 0 and s.significance > 0
+
+
+def test_summary_struct_has_the_header_layout():
+    # sie.h: 13 fields of 0.1, then verdict/start (u32), five doubles and three u32 (0.2).
+    assert ctypes.sizeof(_native.sie_summary) == 184
+    assert _native.sie_summary.verdict.offset == 120 and _native.sie_summary.significance.offset == 128
+    assert _native.sie_summary.agreeing_starts.offset == 176
+    assert sie.Verdict.UNSUPPORTED == 3 and sie.StartKind.HYPOTHESIS == 3 and sie.Starts.INITIAL_GUESS == 1
 
 
 def test_correspondences_in_float32_and_unequal_counts():
@@ -615,6 +666,9 @@ def test_type_hints_serve_a_strict_mypy_user(tmp_path):
         "def register(source: np.ndarray, target: np.ndarray) -> np.ndarray:\n"
         "    result: sie.Registration = sie.align(source, target, max_iterations=50)\n"
         "    reason: sie.StopReason = result.summary.stop_reason\n"
+        "    verdict: sie.Verdict = result.summary.verdict\n"
+        "    if verdict is not sie.Verdict.GOOD:\n"
+        "        print(result.summary.significance, result.summary.margin)\n"
         "    print(reason, result.summary.sigma[0] + 1.0)\n"
         "    return result.transform\n"
     )
