@@ -21,6 +21,10 @@ pub mod exit {
     /// Registered, but stopped at the iteration limit or on a degenerate problem; every
     /// requested output was still written.
     pub const NOT_CONVERGED: u8 = 1;
+    /// Registered and converged, but the verdict is not GOOD (doubtful or unsupported): check
+    /// the pose before using it; every requested output was still written. SIE cost only: a
+    /// baseline cost has no fitted noise model for the verdict to rest on.
+    pub const NOT_GOOD: u8 = 3;
     /// Bad usage, an unreadable or malformed input file, input the registration rejects, or
     /// an output that could not be written.
     pub const ERROR: u8 = 2;
@@ -37,6 +41,8 @@ Exit codes:
   1    registered but not converged (iteration limit or degenerate problem); outputs still written
   2    usage error, unreadable or malformed input, input rejected by the registration, or an
        output that could not be written (one line `sie: <message>` on stderr)
+  3    registered and converged, but SIE's verdict is not good (doubtful: check the pose or
+       retry from another guess; unsupported: do not use it); outputs still written
   70   internal error (a bug; please report the message)
   130  cancelled with Ctrl-C; the transform reached so far is still reported";
 

@@ -15,7 +15,7 @@ use sie::io::{
 use sie::memory;
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
-    RegistrationResult, StopReason, TraceEntry, register_clouds,
+    RegistrationResult, StopReason, TraceEntry, Verdict, register_clouds,
 };
 
 use super::args::{RegisterArgs, pose_matrix};
@@ -23,7 +23,7 @@ use super::plot::{PlotFormat, PlotText, write_plot};
 use super::progress::{InterruptScope, Progress, install_interrupt_handler};
 use super::report::{
     CloudReport, GroundTruthError, JsonReport, SummaryContext, TraceRow, format_transform, json_stop_reason,
-    pose_error, significant, summary, transform_rows,
+    pose_error, quality_report, search_row, significant, summary, transform_rows,
 };
 use super::{CliError, exit};
 
@@ -206,6 +206,8 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             ground_truth,
             init_correction: init.map(|rigid| rigid.correction),
             ground_truth_correction: truth.map(|rigid| rigid.correction),
+            quality: quality_report(&result),
+            search: search_row(&result),
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;
@@ -229,6 +231,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             seconds,
             read_seconds,
             ground_truth,
+            judged: config.cost == CostFunction::Sie,
             written,
         };
         eprint!("{}", summary(&result, &context));
@@ -240,7 +243,11 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         return Err(CliError::new(first));
     }
     Ok(match result.stop_reason {
-        StopReason::Converged => exit::CONVERGED,
+        // The verdict judges SIE's fitted noise model; a baseline cost has none (L2) or the
+        // caller's scale, so its verdict does not set the exit code.
+        StopReason::Converged if config.cost != CostFunction::Sie => exit::CONVERGED,
+        StopReason::Converged if result.quality.verdict == Verdict::Good => exit::CONVERGED,
+        StopReason::Converged => exit::NOT_GOOD,
         StopReason::IterationLimit | StopReason::Degenerate => exit::NOT_CONVERGED,
         StopReason::Cancelled => exit::CANCELLED,
     })

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use nalgebra::Matrix4;
 use serde::Serialize;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
-use sie::{RegistrationResult, StopReason, TraceEntry};
+use sie::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
 
 /// Rotation (degrees) and translation distance between an estimate and the ground truth:
 /// the size of truth⁻¹ · estimate.
@@ -144,8 +144,136 @@ pub struct JsonReport<'a> {
     /// exactly rigid (null without the option; above 1e-6 the file was visibly rounded).
     pub init_correction: Option<f64>,
     pub ground_truth_correction: Option<f64>,
-    /// One row per iteration with `--trace`, else empty.
+    /// How far to trust the pose, and the evidence.
+    pub quality: QualityReport,
+    /// Where the pose came from (`--starts automatic` runs several starts).
+    pub search: SearchRow,
+    /// One row per update of every start with `--trace`, else empty.
     pub trace: Vec<TraceRow>,
+}
+
+/// The verdict and its evidence (`RegistrationResult::quality`).
+#[derive(Serialize)]
+pub struct QualityReport {
+    /// "good", "doubtful" or "unsupported".
+    pub verdict: &'static str,
+    /// Of the inlier cluster against chance, nats (0: nothing stands out).
+    pub significance: f64,
+    /// How well the inliers constrain the pose, 0–1.
+    pub conditioning: f64,
+    /// Fitted σ over the target points' typical spacing (null when that spacing is 0).
+    pub sigma_to_spacing: Option<f64>,
+    /// significance / search.runner_up_significance (null when no start ended elsewhere).
+    pub margin: Option<f64>,
+}
+
+/// The search over starts (`RegistrationResult::search`).
+#[derive(Serialize)]
+pub struct SearchRow {
+    /// "initial_guess", "narrow_beta", "scale_free_lead" or "hypothesis".
+    pub start: &'static str,
+    pub starts_run: u32,
+    pub hypotheses: u32,
+    pub agreeing_starts: u32,
+    /// Largest significance of a start that ended at another pose (0: none did).
+    pub runner_up_significance: f64,
+}
+
+pub fn quality_report(result: &RegistrationResult) -> QualityReport {
+    let quality = &result.quality;
+    QualityReport {
+        verdict: verdict_label(quality.verdict),
+        significance: quality.significance,
+        conditioning: quality.conditioning,
+        sigma_to_spacing: quality
+            .sigma_to_spacing
+            .is_finite()
+            .then_some(quality.sigma_to_spacing),
+        margin: quality.margin.is_finite().then_some(quality.margin),
+    }
+}
+
+pub fn search_row(result: &RegistrationResult) -> SearchRow {
+    let search = &result.search;
+    SearchRow {
+        start: match search.start {
+            StartKind::InitialGuess => "initial_guess",
+            StartKind::NarrowBeta => "narrow_beta",
+            StartKind::ScaleFreeLead => "scale_free_lead",
+            StartKind::Hypothesis => "hypothesis",
+        },
+        starts_run: search.starts_run,
+        hypotheses: search.hypotheses,
+        agreeing_starts: search.agreeing_starts,
+        runner_up_significance: search.runner_up_significance,
+    }
+}
+
+pub fn verdict_label(verdict: Verdict) -> &'static str {
+    match verdict {
+        Verdict::Good => "good",
+        Verdict::Doubtful => "doubtful",
+        Verdict::Unsupported => "unsupported",
+    }
+}
+
+/// The summary's verdict line: the verdict, what to do, and for DOUBTFUL which evidence is
+/// weak. The thresholds are the core's (`registration::pipeline::verdict`, documented in
+/// include/sie.h's `sie_summary`).
+pub fn verdict_line(result: &RegistrationResult) -> String {
+    let q = &result.quality;
+    match q.verdict {
+        Verdict::Good => {
+            let starts = &result.search;
+            let agreement = if starts.starts_run > 1 {
+                format!(
+                    ", {} of {} starts agree",
+                    starts.agreeing_starts, starts.starts_run
+                )
+            } else {
+                String::new()
+            };
+            format!(
+                "good (significance {:.0}, conditioning {}{agreement})",
+                q.significance,
+                significant(q.conditioning)
+            )
+        }
+        Verdict::Unsupported => {
+            "UNSUPPORTED: no inlier cluster stands out from chance; do not use this pose".to_string()
+        }
+        Verdict::Doubtful => {
+            let mut weak = Vec::new();
+            if result.histograms.iter().any(|h| !h.peak_found) {
+                weak.push("no inlier peak in the residual histogram".to_string());
+            }
+            if q.conditioning < 1e-3 {
+                weak.push(format!(
+                    "conditioning {} (the inliers leave the pose loose in some direction)",
+                    significant(q.conditioning)
+                ));
+            }
+            if q.margin < 2.0 {
+                weak.push(format!(
+                    "another start ended elsewhere nearly as significant (margin {})",
+                    significant(q.margin)
+                ));
+            }
+            if q.sigma_to_spacing > 1.0 {
+                weak.push(format!(
+                    "inlier sigma {} x the point spacing",
+                    significant(q.sigma_to_spacing)
+                ));
+            }
+            if weak.is_empty() {
+                weak.push("weak evidence".to_string());
+            }
+            format!(
+                "DOUBTFUL: {}; check the pose or retry from another guess",
+                weak.join(", ")
+            )
+        }
+    }
 }
 
 pub fn json_stop_reason(reason: StopReason) -> &'static str {
@@ -173,6 +301,8 @@ pub struct SummaryContext<'a> {
     pub seconds: f64,
     pub read_seconds: f64,
     pub ground_truth: Option<GroundTruthError>,
+    /// False for baseline costs: their verdict rests on no fitted noise model.
+    pub judged: bool,
     pub written: Vec<String>,
 }
 
@@ -235,6 +365,15 @@ pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String 
         result.inlier_fraction,
         significant(result.rmse)
     );
+    if context.judged {
+        let _ = writeln!(text, "verdict  {}", verdict_line(result));
+    } else {
+        let _ = writeln!(
+            text,
+            "verdict  {} (a baseline cost fits no noise model to judge by; use --cost sie for a verdict)",
+            verdict_label(result.quality.verdict)
+        );
+    }
     if let Some(error) = context.ground_truth {
         let _ = writeln!(
             text,
