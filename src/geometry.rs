@@ -245,7 +245,9 @@ pub fn weighted_rigid_fit_by(
     pair: impl Fn(usize) -> (Point, Point),
     weights: &[f64],
 ) -> Option<Solve> {
+    // Pairs of weight 0 (a far-off garbage point among them) take no part in the fit.
     let largest = (0..count.min(weights.len()))
+        .filter(|&i| weights[i] > 0.0)
         .map(&pair)
         .flat_map(|(a, b)| a.into_iter().chain(b))
         .fold(0.0f64, |m, c| m.max(c.abs()));

@@ -428,8 +428,9 @@ fn symmetric_shape_registers_without_nan() {
 /// Cloud registration of a scene expressed at 1e77 or 1e100 (or 1e-100) times its size: the
 /// nearest-neighbour search and the point-to-point solve square coordinates, which overflowed
 /// (PANIC "index out of bounds" in `src/nn.rs` for point-to-point at 1e77, NaN from the SVD
-/// once that was fixed). The answer must be the unit-scale answer, scaled (to 1e-5: the
-/// absolute convergence tolerances stop the runs at different iterations).
+/// once that was fixed). The answer must be the unit-scale answer, scaled (to 1e-4: a run stops
+/// once an update is below a tenth of the pose's standard error, here ~1e-3, so rounding at
+/// another scale can end it one update earlier or later).
 #[test]
 fn clouds_at_extreme_magnitudes_register_like_the_unit_scale_scene() {
     let scene = room_scene(2000, 0.01, 3);
@@ -461,10 +462,10 @@ fn clouds_at_extreme_magnitudes_register_like_the_unit_scale_scene() {
             for row in 0..3 {
                 for col in 0..3 {
                     let (got, want) = (out[4 * row + col], reference[4 * row + col]);
-                    assert!((got - want).abs() < 1e-5, "{metric:?} at {scale:e}: R {out:?}");
+                    assert!((got - want).abs() < 1e-4, "{metric:?} at {scale:e}: R {out:?}");
                 }
                 let (got, want) = (out[4 * row + 3] / scale, reference[4 * row + 3]);
-                assert!((got - want).abs() < 1e-5, "{metric:?} at {scale:e}: t {out:?}");
+                assert!((got - want).abs() < 1e-4, "{metric:?} at {scale:e}: t {out:?}");
             }
         }
     }

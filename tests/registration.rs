@@ -10,7 +10,7 @@ use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
     CloudRole, CostFunction, Error, HistogramMode, Hooks, Metric, NoiseModel, NoiseScales, NoiseShape, Point,
-    RegistrationConfig, StopReason, register_clouds, register_correspondences,
+    RegistrationConfig, Starts, StopReason, register_clouds, register_correspondences,
 };
 
 fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
@@ -296,10 +296,21 @@ fn iteration_cap_and_trace_are_reported_honestly() {
         &Translation3::new(0.5, 0.0, 0.0).to_homogeneous(),
         4,
     );
-    let config = RegistrationConfig {
+    // Automatic starts: each start makes at most max_iterations updates, all are counted.
+    let automatic = RegistrationConfig {
         max_iterations: 3,
         record_trace: true,
         ..RegistrationConfig::default()
+    };
+    let result =
+        register_correspondences(&data.source, &data.target, None, &automatic, Hooks::default()).unwrap();
+    assert_eq!(result.stop_reason, StopReason::IterationLimit);
+    assert_eq!(result.iterations, 3 * result.search.starts_run);
+    assert_eq!(result.trace.len() as u32, result.iterations);
+    // The paper's single start: exactly the cap.
+    let config = RegistrationConfig {
+        starts: Starts::InitialGuess,
+        ..automatic
     };
     let result =
         register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
@@ -388,7 +399,7 @@ fn room_scenes_converge_at_benchmark_sizes() {
         let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
         assert_eq!(result.stop_reason, StopReason::Converged, "{points} points");
         assert!(
-            result.iterations < 100,
+            result.iterations < 100 * result.search.starts_run,
             "{points} points: {} iterations",
             result.iterations
         );

@@ -10,7 +10,7 @@ use super::{
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
-use crate::sie::schedule::{BetaSchedule, Convergence, Schedule, row_norm};
+use crate::sie::schedule::{BetaSchedule, Convergence, PrecisionStop, Schedule, row_norm};
 
 /// How correspondences are weighted.
 enum Weighting {
@@ -39,7 +39,7 @@ struct Workspace {
 }
 
 impl Weighting {
-    fn new(config: &RegistrationConfig) -> Self {
+    fn new(config: &RegistrationConfig, precision_stop: PrecisionStop) -> Self {
         match config.cost {
             CostFunction::Sie => Weighting::Sie(Box::new(Schedule::new(
                 config.sie.clone(),
@@ -48,6 +48,7 @@ impl Weighting {
                     shrink: config.beta_shrink,
                     stop_ratio: config.beta_stop_ratio,
                 },
+                precision_stop,
             ))),
             cost => Weighting::Baseline { cost, scale: 0.0 },
         }
@@ -129,7 +130,7 @@ impl Weighting {
 
 /// Rounding of coordinates of this magnitude, as a normalised residual (divided by the median
 /// row scale F): a few hundred ulps, far below any measured noise.
-fn resolution(magnitude: f64, row_scales: &[f64]) -> f64 {
+pub(crate) fn resolution(magnitude: f64, row_scales: &[f64]) -> f64 {
     const ULPS: f64 = 1024.0;
     let mut scales = row_scales.to_vec();
     let mid = scales.len() / 2;
@@ -167,7 +168,12 @@ pub(crate) fn run(
     let mut transform = init;
     // The transform before the last update, for the 2-cycle test below.
     let mut previous = init;
-    let mut weighting = Weighting::new(config);
+    let precision_stop = if problem.rematches() {
+        PrecisionStop::Allowed
+    } else {
+        PrecisionStop::Never
+    };
+    let mut weighting = Weighting::new(config, precision_stop);
     let mut work = Workspace::default();
     let mut stop = StopReason::IterationLimit;
     let mut rank_deficient = false;

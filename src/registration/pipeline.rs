@@ -105,6 +105,7 @@ fn correspondences_on(
             }
             .background(),
             spacing: None,
+            exact_start: false,
         };
         let mut result = run(problem, init, 1, config, observer)?;
         judged_alone(&evidence, problem, &mut result);
@@ -165,6 +166,7 @@ fn register_from_hypotheses(
         let evidence = Evidence {
             background: pairs.background(),
             spacing: None,
+            exact_start: false,
         };
         judged_alone(&evidence, problem, &mut result);
         result.search.hypotheses = search.samples as u32;
@@ -173,6 +175,7 @@ fn register_from_hypotheses(
     let mut best = BestOfStarts::new(Evidence {
         background: pairs.background(),
         spacing: None,
+        exact_start: false,
     });
     let starts = search
         .candidates
@@ -239,8 +242,27 @@ impl BestOfStarts {
         result.search.start = start;
         result.search.significance = significance;
         let cancelled = result.stop_reason == StopReason::Cancelled;
-        // A cancelled run's transform is the one the caller stopped at: report it.
-        if cancelled || self.best.as_ref().is_none_or(|(s, _)| significance > *s) {
+        // A cancelled run's transform is the one the caller stopped at: report it. A start that
+        // ends at the best pose so far (within its precision) replaces it only when clearly more
+        // significant (a better noise model there): near-ties between equal poses are rounding,
+        // and the earlier start (the paper's) is kept.
+        let replaces = match &self.best {
+            None => true,
+            Some((best_significance, best)) => {
+                significance > *best_significance
+                    && (significance > SAME_POSE_TIE * *best_significance || {
+                    let best_precision = self
+                        .ends
+                        .iter()
+                        .find(|end| end.0 == best.transform)
+                        .map_or(precision, |end| end.2);
+                    let typical_scale = median(problem.rows().scale.clone());
+                    let apart = moved_apart(problem.source_points(), &best.transform, &result.transform) / typical_scale;
+                    apart > SAME_POSE_ERRORS * precision.max(best_precision)
+                })
+            }
+        };
+        if cancelled || replaces {
             self.best = Some((significance, result));
         }
         !cancelled
@@ -286,6 +308,8 @@ impl BestOfStarts {
 struct Evidence {
     background: Background,
     spacing: Option<f64>,
+    /// The initial guess already fits every row to rounding: no other start is needed.
+    exact_start: bool,
 }
 
 impl Evidence {
@@ -296,12 +320,22 @@ impl Evidence {
         let initial = squared_norms(problem.evaluate_all(init), cols);
         let spread = initial.iter().sum::<f64>() / initial.len().max(1) as f64;
         let typical_scale = median(problem.rows().scale.clone());
+        let resolution = super::driver::resolution(problem.coordinate_magnitude(), &problem.rows().scale);
+        // Residuals at the rounding level already: the guess is exact, and the spread of the
+        // target itself is the background a wrong pose would show.
+        let exact_start = spread <= resolution * resolution;
+        let spread = if exact_start {
+            (problem.target_spread() / typical_scale).powi(2)
+        } else {
+            spread
+        };
         Evidence {
             background: Background {
                 spread_squared: spread.max(f64::MIN_POSITIVE),
                 dims: cols,
             },
             spacing: Some(problem.target_spacing() / typical_scale),
+            exact_start,
         }
     }
 
@@ -337,13 +371,18 @@ fn verdict(result: &RegistrationResult) -> Verdict {
     if !(quality.significance > 0.0) {
         return Verdict::Unsupported;
     }
-    let peak = result.histograms.iter().all(|h| h.peak_found);
+    // A histogram without spread (exact data) has every sample at its peak.
+    let peak = result.histograms.iter().all(|h| h.peak_found || h.shape.sigma == 0.0);
     let good = peak
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
         && quality.sigma_to_spacing <= 1.0;
     if good { Verdict::Good } else { Verdict::Doubtful }
 }
+
+/// Between two results at the same pose, the later must be this many times as significant to
+/// replace the earlier.
+const SAME_POSE_TIE: f64 = 1.05;
 
 /// Two starts' results are the same pose when they are this many standard errors apart or
 /// closer (as row displacements).
@@ -613,8 +652,9 @@ fn register_from_starts(
     let cols = problem.cols();
     let evidence = Evidence::of_clouds(problem, &init);
     let rms = (evidence.background.spread_squared / cols as f64).sqrt();
+    let starts = if evidence.exact_start { &CLOUD_STARTS[..1] } else { &CLOUD_STARTS[..] };
     let mut best = BestOfStarts::new(evidence);
-    for start in CLOUD_STARTS {
+    for start in starts {
         let (from, kind) = match start.lead {
             Lead::None => (init, StartKind::InitialGuess),
             Lead::ScaleFree => {
@@ -640,9 +680,23 @@ fn register_from_starts(
             ..config.clone()
         };
         let result = run(problem, from, best.next_iteration, &start_config, observer.as_deref_mut())?;
-        if !best.offer(problem, result, kind) {
+        let stayed = kind == StartKind::InitialGuess && stayed_near(problem, &init, &result);
+        if !best.offer(problem, result, kind) || stayed {
             break;
         }
     }
     Ok(best.finish(problem))
 }
+
+/// The initial guess was already right to within the noise: the paper's start (the widest β)
+/// moved the source points by at most `STAYED_SIGMAS`·σ RMS. Narrower starts from the same
+/// guess cannot be pulled elsewhere by data that did not pull the widest one (a sequence's
+/// constant-velocity guess is the common case: one start, the paper's cost).
+fn stayed_near(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> bool {
+    let typical_scale = median(problem.rows().scale.clone());
+    let moved = moved_apart(problem.source_points(), init, &result.transform) / typical_scale;
+    moved <= STAYED_SIGMAS * fitted_sigma(result)
+}
+
+/// See [`stayed_near`].
+const STAYED_SIGMAS: f64 = 3.0;

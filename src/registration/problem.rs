@@ -52,6 +52,9 @@ impl Rows {
 pub trait Problem {
     /// Residual dimensions m.
     fn cols(&self) -> usize;
+    /// Whether the pairs change with the transform (ICP re-matches; given correspondences do
+    /// not).
+    fn rematches(&self) -> bool;
     fn source_count(&self) -> usize;
     /// The source points as given.
     fn source_points(&self) -> &[Point];
@@ -156,6 +159,10 @@ impl<'a> CorrespondenceProblem<'a> {
 }
 
 impl Problem for CorrespondenceProblem<'_> {
+    fn rematches(&self) -> bool {
+        false
+    }
+
     fn cols(&self) -> usize {
         3
     }
@@ -542,6 +549,18 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
 }
 
 impl CloudProblem<'_> {
+    /// RMS distance of the target points from their centroid (over at most 1024 evenly
+    /// strided points), input units.
+    pub fn target_spread(&self) -> f64 {
+        let points = self.target.points();
+        let step = points.len().div_ceil(1024).max(1);
+        let sample: Vec<Point> = points.iter().step_by(step).copied().collect();
+        let n = sample.len().max(1) as f64;
+        let centre: Point = std::array::from_fn(|axis| sample.iter().map(|p| p[axis]).sum::<f64>() / n);
+        let sum: f64 = sample.iter().map(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>()).sum();
+        (sum / n).sqrt()
+    }
+
     /// Median distance from a target point to its nearest other target point (over at most
     /// 1024 evenly strided points), input units.
     pub fn target_spacing(&self) -> f64 {
@@ -562,6 +581,10 @@ impl CloudProblem<'_> {
 }
 
 impl Problem for CloudProblem<'_> {
+    fn rematches(&self) -> bool {
+        true
+    }
+
     fn cols(&self) -> usize {
         match self.metric {
             Metric::PointToPoint => 3,

@@ -267,7 +267,10 @@ impl SieEstimator {
 
     /// True when β_j < ratio·σ_j for every histogram (§4.3: "until β ≪ σ").
     pub fn beta_negligible(&self, ratio: f64) -> bool {
-        self.models.iter().all(|m| m.beta <= ratio * m.shape.sigma)
+        // Below the smallest σ the data can show, narrowing β further changes nothing (noise-free
+        // residuals fit σ = 0: "β ≪ σ" would never hold).
+        let floor = self.options.min_sigma;
+        self.models.iter().all(|m| m.beta <= ratio * m.shape.sigma.max(floor))
     }
 
     /// Creates the models for this residual layout without fitting (so β can be set first).

@@ -60,11 +60,23 @@ pub enum Convergence {
     Resolved,
 }
 
+/// When the final round may stop on an update below the pose's precision.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PrecisionStop {
+    /// ICP: matches and histogram bins flip at the precision's scale, so the updates may never
+    /// get below the tolerances.
+    Allowed,
+    /// Fixed pairs: IRLS converges geometrically; the tolerances alone decide (the simulation's
+    /// excess error stays at the tolerance's level, not the precision's).
+    Never,
+}
+
 /// SIE's state across the updates of one registration.
 #[derive(Clone, Debug)]
 pub struct Schedule {
     estimator: SieEstimator,
     beta: BetaSchedule,
+    precision_stop: PrecisionStop,
     phase: Phase,
     level_updates: u32,
     started: bool,
@@ -73,10 +85,11 @@ pub struct Schedule {
 }
 
 impl Schedule {
-    pub fn new(options: SieOptions, beta: BetaSchedule) -> Self {
+    pub fn new(options: SieOptions, beta: BetaSchedule, precision_stop: PrecisionStop) -> Self {
         Schedule {
             estimator: SieEstimator::new(options),
             beta,
+            precision_stop,
             phase: Phase::Annealing,
             level_updates: 0,
             started: false,
@@ -195,7 +208,11 @@ impl Schedule {
                 }
                 Convergence::NotYet
             }
-            _ if displacement <= PRECISION_FRACTION * self.precision() => Convergence::Resolved,
+            _ if self.precision_stop == PrecisionStop::Allowed
+                && displacement <= PRECISION_FRACTION * self.precision() =>
+            {
+                Convergence::Resolved
+            }
             Phase::Final => {
                 if settled {
                     self.phase = Phase::Frozen;
