@@ -39,7 +39,7 @@ use report::{duration, replace_section, sci, table, write_csv};
 use scans::{PairCase, ScanRun};
 use sie::{GammaRule, Hooks, register_clouds, register_correspondences};
 use simulation::{
-    Cell, CellStats, Method, Motion, NOISE_SIGMA, Noise, OUTLIER_LEVELS, STEPS, appendix_methods, grid_cells,
+    Cell, CellStats, Method, Motion, NOISE_SIGMA, Noise, OUTLIER_LEVELS, STEPS, VerdictTally, appendix_methods, grid_cells,
     instance, instance_seed, paper_methods, run_cell,
 };
 
@@ -289,6 +289,23 @@ fn grid_csv(path: &Path, grid: &GridResult, methods: &[Method]) -> Result<(), St
 }
 
 /// Cell text: failure percentage and mean error of the non-failures.
+/// One line on how SIE's quality verdict matched its outcomes over `runs` runs.
+fn verdict_line(what: &str, t: &VerdictTally) -> String {
+    let right = t.right_good + t.right_not_good;
+    let wrong = t.wrong_good + t.wrong_not_good;
+    let rate = |n: usize, of: usize| if of == 0 { "–".to_string() } else { format!("{:.1} %", 100.0 * n as f64 / of as f64) };
+    format!(
+        "SIE's quality verdict on {what}: {right} right runs, {} called GOOD, {} not (false \"bad\": {}); \
+         {wrong} wrong runs, {} called GOOD (false \"good\": {}), {} of them more than 5× the failure bound off.\n",
+        t.right_good,
+        t.right_not_good,
+        rate(t.right_not_good, right),
+        t.wrong_good,
+        rate(t.wrong_good, wrong),
+        t.far_wrong_good
+    )
+}
+
 fn cell_text(s: &CellStats) -> String {
     format!("{:.0} · {}", 100.0 * s.failure_rate(), sci(s.mean_error))
 }
@@ -475,7 +492,13 @@ fn grid(options: &Options) -> Result<String, String> {
     }
     section.push_str("#### Every cell: failures (%) · mean error of the non-failures\n\n");
     section.push_str(&grid_tables(&result, &methods));
-    section.push_str("CSV: `results/grid.csv`.\n");
+    let mut tally = VerdictTally::default();
+    for cell in &result.stats {
+        tally.merge(&cell[0].verdicts);
+    }
+    section.push('\n');
+    section.push_str(&verdict_line("every instance of the grid", &tally));
+    section.push_str("\nCSV: `results/grid.csv`.\n");
     Ok(section)
 }
 
@@ -488,6 +511,7 @@ fn beyond_grid(options: &Options) -> Result<String, String> {
     header.extend(methods.iter().map(|m| m.label.to_string()));
     let mut rows = Vec::new();
     let mut csv = Vec::new();
+    let mut tally = VerdictTally::default();
     for family in &families {
         let label = family.label();
         let finished = AtomicUsize::new(0);
@@ -496,6 +520,7 @@ fn beyond_grid(options: &Options) -> Result<String, String> {
             progress.tick(&label, n, options.instances);
         };
         let stats = beyond::run_family(family, &methods, options.instances, options.threads, &tick);
+        tally.merge(&stats[0].verdicts);
         let mut row = vec![label.clone()];
         row.extend(stats.iter().map(cell_text));
         rows.push(row);
@@ -537,6 +562,8 @@ fn beyond_grid(options: &Options) -> Result<String, String> {
          the same protocol, error and baseline scales as the grid.\n\n",
     );
     section.push_str(&table(&header, &rows));
+    section.push('\n');
+    section.push_str(&verdict_line("every instance of these families", &tally));
     section.push_str("\nCSV: `results/beyond.csv`.\n");
     Ok(section)
 }
@@ -657,6 +684,8 @@ fn run_scan(
         rotation_degrees: errors.0,
         translation: errors.1,
         success: case.success(errors),
+        far_off: case.far_off(errors),
+        called_good: result.quality.verdict == sie::Verdict::Good,
         converged: result.converged,
         iterations: result.iterations,
         seconds: began.elapsed().as_secs_f64(),
@@ -815,6 +844,61 @@ fn scan_report(cases: &[PairCase], runs: &[ScanRun], left_out: &[scans::LeftOut]
         ));
     }
     out.push_str(&table(&header, &[totals]));
+    // Successes per data set, and how SIE's verdict matched its outcomes there.
+    let mut names: Vec<&str> = Vec::new();
+    for case in cases {
+        if !names.contains(&case.settings.name) {
+            names.push(case.settings.name);
+        }
+    }
+    let mut success_header = vec!["data set".to_string()];
+    success_header.extend(methods.iter().map(|m| m.label.to_string()));
+    let mut success_rows = Vec::new();
+    let mut verdict_rows = Vec::new();
+    let mut all = VerdictTally::default();
+    for name in &names {
+        let of_set = |m: usize| -> Vec<&ScanRun> {
+            runs.iter()
+                .filter(|r| r.method == m && cases[r.case].settings.name == *name)
+                .collect()
+        };
+        let mut row = vec![name.to_string()];
+        for m in 0..methods.len() {
+            let set = of_set(m);
+            row.push(format!("{}/{}", set.iter().filter(|r| r.success).count(), set.len()));
+        }
+        success_rows.push(row);
+        let mut tally = VerdictTally::default();
+        for r in of_set(0) {
+            tally.add(r.success, r.far_off, r.called_good);
+        }
+        all.merge(&tally);
+        verdict_rows.push(vec![
+            name.to_string(),
+            tally.right_good.to_string(),
+            tally.right_not_good.to_string(),
+            tally.wrong_good.to_string(),
+            tally.far_wrong_good.to_string(),
+            tally.wrong_not_good.to_string(),
+        ]);
+    }
+    out.push_str("\n#### Successes per data set (both starts)\n\n");
+    out.push_str(&table(&success_header, &success_rows));
+    out.push_str("\n#### SIE's quality verdict against the outcome\n\n");
+    out.push_str(&table(
+        &[
+            "data set",
+            "right, GOOD",
+            "right, not GOOD (false bad)",
+            "wrong, GOOD (false good)",
+            "of those > 5× the bound off",
+            "wrong, not GOOD",
+        ]
+        .map(String::from),
+        &verdict_rows,
+    ));
+    out.push('\n');
+    out.push_str(&verdict_line("the real scans", &all));
     if !left_out.is_empty() {
         let list: Vec<String> = left_out
             .iter()
@@ -1013,6 +1097,7 @@ fn run_custom(
                     let t = register(&data);
                     let trial = simulation::Trial {
                         error: reference.error(&t),
+                        called_good: false,
                         converged: true,
                         iterations: 0,
                         seconds: began.elapsed().as_secs_f64(),

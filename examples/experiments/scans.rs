@@ -129,6 +129,11 @@ impl PairCase {
     pub fn success(&self, errors: (f64, f64)) -> bool {
         errors.0 < self.settings.success_degrees && errors.1 < self.settings.success_translation
     }
+
+    /// More than 5× the success bound off in rotation or translation.
+    pub fn far_off(&self, errors: (f64, f64)) -> bool {
+        errors.0 > 5.0 * self.settings.success_degrees || errors.1 > 5.0 * self.settings.success_translation
+    }
 }
 
 fn random_unit(rng: &mut Xoshiro256PlusPlus) -> Vector3<f64> {
@@ -525,6 +530,10 @@ pub struct ScanRun {
     pub rotation_degrees: f64,
     pub translation: f64,
     pub success: bool,
+    /// Off by more than 5× the success bound (in rotation or translation).
+    pub far_off: bool,
+    /// The result's quality verdict was GOOD.
+    pub called_good: bool,
     pub converged: bool,
     pub iterations: u32,
     pub seconds: f64,

@@ -401,6 +401,8 @@ pub fn grid_cells(noise: Noise) -> Vec<Cell> {
 #[derive(Clone, Copy, Debug)]
 pub struct Trial {
     pub error: f64,
+    /// The result's quality verdict was GOOD.
+    pub called_good: bool,
     pub converged: bool,
     pub iterations: u32,
     pub seconds: f64,
@@ -418,6 +420,45 @@ pub struct CellStats {
     pub not_converged: usize,
     pub mean_iterations: f64,
     pub seconds: f64,
+    pub verdicts: VerdictTally,
+}
+
+/// How a method's verdicts match its outcomes (issue: verdicts a user can trust).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct VerdictTally {
+    /// Right (error within the failure bound) and called good.
+    pub right_good: usize,
+    /// Right but not called good (false "bad").
+    pub right_not_good: usize,
+    /// Wrong and called good (false "good").
+    pub wrong_good: usize,
+    /// Wrong by more than 5× the bound and called good.
+    pub far_wrong_good: usize,
+    /// Wrong and not called good.
+    pub wrong_not_good: usize,
+}
+
+impl VerdictTally {
+    /// Counts one run.
+    pub fn add(&mut self, right: bool, far_wrong: bool, called_good: bool) {
+        match (right, called_good) {
+            (true, true) => self.right_good += 1,
+            (true, false) => self.right_not_good += 1,
+            (false, true) => {
+                self.wrong_good += 1;
+                self.far_wrong_good += usize::from(far_wrong);
+            }
+            (false, false) => self.wrong_not_good += 1,
+        }
+    }
+
+    pub fn merge(&mut self, other: &VerdictTally) {
+        self.right_good += other.right_good;
+        self.right_not_good += other.right_not_good;
+        self.wrong_good += other.wrong_good;
+        self.far_wrong_good += other.far_wrong_good;
+        self.wrong_not_good += other.wrong_not_good;
+    }
 }
 
 impl CellStats {
@@ -440,6 +481,14 @@ impl CellStats {
             not_converged: trials.iter().filter(|t| !t.converged).count(),
             mean_iterations: trials.iter().map(|t| t.iterations as f64).sum::<f64>() / n,
             seconds: trials.iter().map(|t| t.seconds).sum(),
+            verdicts: trials.iter().fold(VerdictTally::default(), |mut tally, t| {
+                tally.add(
+                    t.error <= FAILURE_THRESHOLD,
+                    t.error > 5.0 * FAILURE_THRESHOLD,
+                    t.called_good,
+                );
+                tally
+            }),
         }
     }
 
@@ -511,6 +560,7 @@ pub fn run_trial(data: &Correspondences, reference: &Reference, method: &Method)
         .expect("simulation input is valid");
     Trial {
         error: reference.error(&result.transform),
+        called_good: result.quality.verdict == sie::Verdict::Good,
         converged: result.converged,
         iterations: result.iterations,
         seconds: start.elapsed().as_secs_f64(),
