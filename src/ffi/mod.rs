@@ -730,5 +730,7 @@ c_enum_values!(sie_noise_model: Constant, QuadraticDepth);
 c_enum_values!(sie_histogram_mode: Pooled, PerColumn);
 c_enum_values!(sie_starts: Automatic, InitialGuess);
 
+// The tests call the ABI on buffers they own and size for each call.
 #[cfg(test)]
+#[allow(clippy::undocumented_unsafe_blocks)]
 mod tests;

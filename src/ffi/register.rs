@@ -138,16 +138,20 @@ unsafe fn register_clouds_from<T: Coordinate>(
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
+        // SAFETY: readable for its count and stride per the contract.
         let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        // SAFETY: readable for its count and stride per the contract.
         let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
         let normals = match target_normals {
             Some(array) => {
+                // SAFETY: readable for its count and stride per the contract.
                 let normals = unsafe { array.read(state.config.skip_non_finite) }?;
                 check_unit_normals(&normals, array.name)?;
                 Some(normals)
             }
             None => None,
         };
+        // SAFETY: NULL or readable for 16 doubles per the contract.
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
         let working_set = memory::cloud_registration_bytes(source_points.len(), target_points.len());
         memory::ensure_available(working_set, "the registration of these clouds")?;
@@ -188,8 +192,11 @@ unsafe fn register_correspondences_from<T: Coordinate>(
         state.result = None;
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
+        // SAFETY: readable for its count and stride per the contract.
         let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        // SAFETY: readable for its count and stride per the contract.
         let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
+        // SAFETY: NULL or readable for 16 doubles per the contract.
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
         let working_set = memory::correspondence_registration_bytes(source_points.len());
         memory::ensure_available(working_set, "the registration of these pairs")?;

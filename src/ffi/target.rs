@@ -42,10 +42,12 @@ unsafe fn prepare_target_from<T: Coordinate>(
             return Err(FfiError::new(sie_status::TooFewPoints, "count is 0"));
         }
         // SAFETY (both reads): readable per the contract.
+        // SAFETY: readable for its count and stride per the contract.
         let points = unsafe { read_points(xyz, count, stride_bytes, "xyz", skip) }?;
         let normals = if normals.is_null() {
             None
         } else {
+            // SAFETY: readable for its count and stride per the contract.
             let normals = unsafe { read_points(normals, count, normals_stride_bytes, "normals", skip) }?;
             check_unit_normals(&normals, "normals")?;
             Some(normals)
@@ -202,6 +204,7 @@ unsafe fn register_to_from<T: Coordinate>(
             return Err(FfiError::new(sie_status::TooFewPoints, "source_count is 0"));
         }
         // SAFETY (both reads): readable per the contract.
+        // SAFETY: readable for its count and stride per the contract.
         let source = unsafe {
             read_points(
                 source_xyz,
@@ -211,6 +214,7 @@ unsafe fn register_to_from<T: Coordinate>(
                 state.config.skip_non_finite,
             )
         }?;
+        // SAFETY: NULL or readable for 16 doubles per the contract.
         let init = unsafe { read_transform(init_T_target_source, "init_T_target_source") }?;
         // SAFETY: `out_T_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {

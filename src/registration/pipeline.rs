@@ -368,7 +368,8 @@ const MIN_MARGIN: f64 = 2.0;
 /// The verdict from the evidence in `result.quality` and the fitted histograms.
 fn verdict(result: &RegistrationResult) -> Verdict {
     let quality = &result.quality;
-    if !(quality.significance > 0.0) {
+    // NaN counts as no support.
+    if quality.significance.is_nan() || quality.significance <= 0.0 {
         return Verdict::Unsupported;
     }
     // A histogram without spread (exact data) has every sample at its peak.

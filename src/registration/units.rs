@@ -75,7 +75,7 @@ impl Units {
         let all: Vec<f64> = sigmas.iter().flat_map(|s| s.iter().copied()).collect();
         if !all.is_empty() {
             let typical = median(all);
-            if typical > SAFE || typical < 1.0 / SAFE {
+            if !(1.0 / SAFE..=SAFE).contains(&typical) {
                 self.noise = typical;
             }
         }
