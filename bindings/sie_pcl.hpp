@@ -122,6 +122,11 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  * (pcl::registration::IncrementalRegistration, ELCH, your own pipeline).
  *
  * What PCL's settings mean here:
+ * - One run from the guess, as PCL's ICP: the context is set to sie::Starts::InitialGuess on
+ *   construction, so the updates, the visualisation callback, the increments and the criteria
+ *   below are those of one run. context().set_starts(sie::Starts::Automatic) runs SIE from
+ *   several starts instead (the updates of every start are then reported in order, and the
+ *   iteration cap holds per start).
  * - setMaximumIterations(n): caps sie's updates at n. The default is sie's 200, not PCL's 10:
  *   SIE anneals its noise model over typically 30-60 updates.
  * - hasConverged(): PCL's convention. True when sie converged, and also when it stopped at the
@@ -252,6 +257,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     void init() {
         this->reg_name_ = "sie::PclRegistration";
         this->max_iterations_ = kDefaultMaximumIterations;
+        context_.set_starts(Starts::InitialGuess);
     }
 
     void register_source(const PointCloudSource &source, const Matrix4 &guess) {

@@ -211,6 +211,9 @@ int main() {
     // The grid clouds are exact copies: the fitness is float rounding.
     CHECK(base->getFitnessScore() < 1e-6);
     const int iterations_default = static_cast<int>(concrete->summary().iterations);
+    // One run from the guess, as PCL's ICP; SIE's verdict comes along.
+    CHECK(concrete->summary().starts_run == 1);
+    CHECK(concrete->summary().verdict == sie::Verdict::Good);
     const Eigen::Matrix4f increment = base->getLastIncrementalTransformation();
     CHECK((increment - Eigen::Matrix4f::Identity()).cwiseAbs().maxCoeff() < 1e-4f);
 
@@ -250,6 +253,13 @@ int main() {
     base->align(aligned);
     CHECK(!base->hasConverged());
     concrete->setFailureAfterMaximumIterations(false);
+    // SIE's automatic starts on request: the cap then holds per start.
+    concrete->context().set_starts(sie::Starts::Automatic);
+    base->align(aligned);
+    CHECK(concrete->summary().iterations >= 3 && concrete->summary().iterations <= 3 * (concrete->summary().starts_run + 1));
+    std::printf("automatic starts under the PCL adapter: %u starts, %u updates\n", concrete->summary().starts_run,
+                concrete->summary().iterations);
+    concrete->context().set_starts(sie::Starts::InitialGuess);
     concrete->setMaximumIterations(200);
 
     // The convergence criteria act after SIE's annealing, where noisy data takes several updates.
