@@ -506,6 +506,10 @@ typedef struct sie_trace_entry {
  * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
  * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
  * (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
+ *
+ * With SIE_STARTS_AUTOMATIC it sees the updates of every start in order (`iteration` numbers
+ * them on); the returned transform is the last update of the start that won, which need not
+ * be the last one seen.
  */
 typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
 
@@ -553,7 +557,7 @@ typedef struct sie_summary {
      */
     uint64_t correspondence_count;
     /**
-     * Number of updates made.
+     * Number of updates made, by every start (`sie_context_set_starts`).
      */
     uint32_t iterations;
     /**
@@ -1212,7 +1216,8 @@ sie_status sie_context_get_histogram(const struct sie_context *ctx,
 
 /**
  * Copies the per-iteration trace of the last successful registration (empty unless
- * `sie_context_set_trace(ctx, true)` was set before it). Buffer rules as in
+ * `sie_context_set_trace(ctx, true)` was set before it): one entry per update of every start,
+ * in the order they ran (`sie_summary.iterations` entries). Buffer rules as in
  * `sie_context_get_inlier_probabilities`.
  *
  * # Safety

@@ -51,6 +51,19 @@ fuzz_target!(|data: &[u8]| {
                 let mut summary = sie_summary::default();
                 assert_eq!(sie_context_get_summary(ctx, &mut summary), sie_status::Ok);
                 assert!(summary.inlier_fraction.is_finite() && summary.rmse.is_finite());
+                // The verdict, its evidence and the search: valid codes, never NaN or inf.
+                assert!((1..=3).contains(&summary.verdict), "{summary:?}");
+                assert!(summary.start <= 3 && summary.starts_run >= 1, "{summary:?}");
+                assert!((1..=summary.starts_run).contains(&summary.agreeing_starts), "{summary:?}");
+                for value in [
+                    summary.significance,
+                    summary.conditioning,
+                    summary.sigma_to_spacing,
+                    summary.margin,
+                    summary.runner_up_significance,
+                ] {
+                    assert!(value.is_finite() && value >= 0.0, "{summary:?}");
+                }
                 let mut matches = vec![0i64; source.len()];
                 let got = sie_context_get_correspondences(ctx, matches.as_mut_ptr(), matches.len(), std::ptr::null_mut());
                 assert_eq!(got, sie_status::Ok);

@@ -240,6 +240,10 @@ pub type sie_noise_fn = Option<
 /// `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
 /// on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
 /// (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
+///
+/// With SIE_STARTS_AUTOMATIC it sees the updates of every start in order (`iteration` numbers
+/// them on); the returned transform is the last update of the start that won, which need not
+/// be the last one seen.
 pub type sie_progress_fn =
     Option<unsafe extern "C" fn(user_data: *mut c_void, entry: *const sie_trace_entry) -> i32>;
 
@@ -268,7 +272,7 @@ pub struct sie_summary {
     pub source_count: u64,
     /// Number of source points matched to a target point.
     pub correspondence_count: u64,
-    /// Number of updates made.
+    /// Number of updates made, by every start (`sie_context_set_starts`).
     pub iterations: u32,
     /// A `sie_stop_reason`.
     pub stop_reason: u32,

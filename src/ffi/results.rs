@@ -267,7 +267,8 @@ pub unsafe extern "C" fn sie_context_get_histogram(
 }
 
 /// Copies the per-iteration trace of the last successful registration (empty unless
-/// `sie_context_set_trace(ctx, true)` was set before it). Buffer rules as in
+/// `sie_context_set_trace(ctx, true)` was set before it): one entry per update of every start,
+/// in the order they ran (`sie_summary.iterations` entries). Buffer rules as in
 /// `sie_context_get_inlier_probabilities`.
 ///
 /// # Safety
