@@ -244,7 +244,8 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
         }
         Verdict::Doubtful => {
             let mut weak = Vec::new();
-            if result.histograms.iter().any(|h| !h.peak_found) {
+            // A histogram without spread (exact data) has every sample at its peak.
+            if result.histograms.iter().any(|h| !h.peak_found && h.shape.sigma != 0.0) {
                 weak.push("no inlier peak in the residual histogram".to_string());
             }
             if q.conditioning < 1e-3 {
