@@ -245,7 +245,11 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
         Verdict::Doubtful => {
             let mut weak = Vec::new();
             // A histogram without spread (exact data) has every sample at its peak.
-            if result.histograms.iter().any(|h| !h.peak_found && h.shape.sigma != 0.0) {
+            if result
+                .histograms
+                .iter()
+                .any(|h| !h.peak_found && h.shape.sigma != 0.0)
+            {
                 weak.push("no inlier peak in the residual histogram".to_string());
             }
             if q.conditioning < 1e-3 {
