@@ -58,6 +58,14 @@ impl Weighting {
         matches!(self, Weighting::Sie(schedule) if schedule.annealing())
     }
 
+    /// The model's width σ+β (normalised); infinite for baselines (they never travel coarse).
+    fn width(&self) -> f64 {
+        match self {
+            Weighting::Sie(schedule) => schedule.width(),
+            Weighting::Baseline { .. } => f64::INFINITY,
+        }
+    }
+
     /// Fits the cost to this iteration's residuals and fills `work.weights`.
     fn update(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
         let n = rows.len();
@@ -127,6 +135,9 @@ impl Weighting {
         }
     }
 }
+
+/// See `travelling` in [`run`].
+const TRAVEL_WIDTHS: f64 = 1.0;
 
 /// Rounding of coordinates of this magnitude, as a normalised residual (divided by the median
 /// row scale F): a few hundred ulps, far below any measured noise.
@@ -200,9 +211,14 @@ pub(crate) fn run(
             *stage(times) -= spent;
             times.normals += spent;
         };
+    // An update that moved the rows by more than the model's width: the pose is still travelling,
+    // and a coarse subset of the matches steers as well as all of them (no convergence is
+    // declared on such an update).
+    let mut travelling = false;
     for iteration in first_iteration..first_iteration.saturating_add(config.max_iterations) {
         lap(&mut 0.0);
-        problem.set_annealing(weighting.annealing());
+        let coarse_allowed = weighting.annealing() || travelling;
+        problem.set_annealing(coarse_allowed);
         problem.linearise(&transform);
         lap(&mut times.matching);
         move_normals_time(problem, &mut times, |t| &mut t.matching);
@@ -264,7 +280,8 @@ pub(crate) fn run(
         let two_cycle = iteration > first_iteration + 1
             && cycle_translation <= config.translation_tolerance
             && cycle_rotation <= config.rotation_tolerance;
-        let converged = match weighting.after_update(below_tolerance, displacement) {
+        travelling = displacement > TRAVEL_WIDTHS * weighting.width();
+        let converged = !(coarse_allowed && travelling) && match weighting.after_update(below_tolerance, displacement) {
             Convergence::NotYet => false,
             Convergence::Tolerance => below_tolerance,
             Convergence::ToleranceOrCycle => below_tolerance || two_cycle,

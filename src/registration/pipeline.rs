@@ -665,7 +665,10 @@ fn register_from_starts(
                     rotation_tolerance: LEAD_ROTATION_TOLERANCE,
                     ..config.clone()
                 };
-                let mut led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut())?;
+                problem.set_lead_only(true);
+                let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
+                problem.set_lead_only(false);
+                let mut led = led?;
                 if led.stop_reason == StopReason::Cancelled {
                     best.offer(problem, led, StartKind::ScaleFreeLead);
                     break;

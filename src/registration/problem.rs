@@ -288,6 +288,8 @@ pub struct CloudProblem<'a> {
     /// when the sample is small enough.
     coarse: Pass,
     use_coarse: bool,
+    /// A lead run (its end is only a start for SIE): every update on the coarse subset.
+    lead_only: bool,
     /// Every source point, for the final evaluation when `sample` is a subset (filled then).
     everything: Pass,
     source_sigma: Option<Vec<f64>>,
@@ -356,6 +358,7 @@ impl<'a> CloudProblem<'a> {
             sample: Pass::new(source, sample),
             coarse: Pass::new(source, coarse),
             use_coarse: false,
+            lead_only: false,
             everything: Pass::default(),
             source_sigma,
             target_sigma,
@@ -549,6 +552,11 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
 }
 
 impl CloudProblem<'_> {
+    /// Runs until the next call as a lead (see `lead_only`) or not.
+    pub fn set_lead_only(&mut self, lead_only: bool) {
+        self.lead_only = lead_only;
+    }
+
     /// RMS distance of the target points from their centroid (over at most 1024 evenly
     /// strided points), input units.
     pub fn target_spread(&self) -> f64 {
@@ -659,7 +667,7 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn set_annealing(&mut self, annealing: bool) {
-        self.use_coarse = annealing;
+        self.use_coarse = annealing || self.lead_only;
     }
 
     fn setup_seconds(&self) -> (f64, f64) {
