@@ -115,6 +115,8 @@ step "install: bin/sie (the CLI)" "$prefix/bin/sie" --version
 # ---- benchmarks only run, on a tiny input (their numbers are for docs/performance.md) ----------
 step "bench_sequences quick (12 frames of 2000 points, frame-to-frame and frame-to-map)" \
   cargo run --release --locked --quiet --example bench_sequences -- quick
+step "bench_starts (2000 points, one repeat)" \
+  cargo run --release --locked --quiet --example bench_starts -- 2000 1 1
 
 # ---- a downstream project: find_package(sie) and pkg-config -----------------------------------
 step "consumer: configure with find_package(sie $abi)" \
