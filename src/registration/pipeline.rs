@@ -684,7 +684,11 @@ fn register_from_starts(
             ..config.clone()
         };
         let result = run(problem, from, best.next_iteration, &start_config, observer.as_deref_mut())?;
-        let stayed = kind == StartKind::InitialGuess && stayed_near(problem, &init, &result);
+        // Only a converged run can show the guess was right (one stopped at the cap while β was
+        // still wide has not looked closely yet).
+        let stayed = kind == StartKind::InitialGuess
+            && result.stop_reason == StopReason::Converged
+            && stayed_near(problem, &init, &result);
         if !best.offer(problem, result, kind) || stayed {
             break;
         }

@@ -67,6 +67,10 @@ pub struct Cluster {
 /// n·KL(k/n ‖ p) for k/n > p (Chernoff bound: P(Binomial(n, p) ≥ k) ≤ exp(−n·KL)); 0 otherwise.
 #[inline]
 fn tail_bound(count: f64, total: f64, log_p: f64) -> f64 {
+    // No residuals (nothing matched), or none inside: nothing stands out.
+    if !(total > 0.0 && count > 0.0) {
+        return 0.0;
+    }
     let q = count / total;
     let p = log_p.exp();
     if q <= p {
@@ -214,6 +218,17 @@ mod tests {
             spread_squared: 3.0 * variance,
             dims: 3,
         }
+    }
+
+    #[test]
+    fn no_residuals_are_not_significant() {
+        let background = Background {
+            spread_squared: 1.0,
+            dims: 3,
+        };
+        let cluster = at_scale(&[], &background, 0.1);
+        assert_eq!(cluster.significance, 0.0);
+        assert_eq!(most_significant(&mut [], &background).significance, 0.0);
     }
 
     #[test]
