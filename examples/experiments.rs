@@ -690,6 +690,7 @@ fn run_scan(
         iterations: result.iterations,
         seconds: began.elapsed().as_secs_f64(),
         sigma: result.sigma.first().copied().unwrap_or(f64::NAN),
+        quality: result.quality.clone(),
     }
 }
 
@@ -711,6 +712,11 @@ fn scan_csv(path: &Path, cases: &[PairCase], runs: &[ScanRun]) -> Result<(), Str
                 r.iterations.to_string(),
                 format!("{:.3}", r.seconds),
                 format!("{:.6e}", r.sigma),
+                format!("{:?}", r.quality.verdict),
+                format!("{:.4e}", r.quality.significance),
+                format!("{:.4e}", r.quality.conditioning),
+                format!("{:.4e}", r.quality.sigma_to_spacing),
+                format!("{:.4e}", r.quality.margin),
             ]
         })
         .collect();
@@ -729,6 +735,11 @@ fn scan_csv(path: &Path, cases: &[PairCase], runs: &[ScanRun]) -> Result<(), Str
             "iterations",
             "seconds",
             "sigma_or_scale",
+            "verdict",
+            "significance",
+            "conditioning",
+            "sigma_to_spacing",
+            "margin",
         ],
         &rows,
     )

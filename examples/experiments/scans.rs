@@ -539,4 +539,6 @@ pub struct ScanRun {
     pub seconds: f64,
     /// SIE only: the estimated σ (normalised units).
     pub sigma: f64,
+    /// The result's quality evidence: verdict, significance, conditioning, σ / spacing, margin.
+    pub quality: sie::Quality,
 }
