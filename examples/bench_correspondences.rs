@@ -20,11 +20,22 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn main() {
     let instances: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(20);
     let cells: [(&str, Matrix4<f64>); 3] = [
-        ("translation 1.0 along x", Translation3::new(1.0, 0.0, 0.0).to_homogeneous()),
-        ("rotation π/2 about x", Rotation3::from_axis_angle(&Vector3::x_axis(), PI / 2.0).to_homogeneous()),
-        ("rotation 2π/5 about x", Rotation3::from_axis_angle(&Vector3::x_axis(), 0.4 * PI).to_homogeneous()),
+        (
+            "translation 1.0 along x",
+            Translation3::new(1.0, 0.0, 0.0).to_homogeneous(),
+        ),
+        (
+            "rotation π/2 about x",
+            Rotation3::from_axis_angle(&Vector3::x_axis(), PI / 2.0).to_homogeneous(),
+        ),
+        (
+            "rotation 2π/5 about x",
+            Rotation3::from_axis_angle(&Vector3::x_axis(), 0.4 * PI).to_homogeneous(),
+        ),
     ];
-    println!("| outliers | T0 | paper's method (initial guess only) | with hypothesis stage | ratio | failures before → after |");
+    println!(
+        "| outliers | T0 | paper's method (initial guess only) | with hypothesis stage | ratio | failures before → after |"
+    );
     println!("|---|---|---|---|---|---|");
     for outliers in [100, 1000, 10_000] {
         for (name, t0) in &cells {
@@ -41,8 +52,9 @@ fn main() {
                         ..RegistrationConfig::default()
                     };
                     let began = Instant::now();
-                    let result = register_correspondences(&data.source, &data.target, None, &config, Hooks::default())
-                        .expect("valid input");
+                    let result =
+                        register_correspondences(&data.source, &data.target, None, &config, Hooks::default())
+                            .expect("valid input");
                     times[k].push(began.elapsed().as_secs_f64());
                     // Far from T0⁻¹ (the inliers' motion) by more than the noise: a failure.
                     let moved = (result.transform - truth).abs().max();

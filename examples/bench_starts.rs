@@ -20,11 +20,14 @@ fn main() {
         .unwrap_or_else(|| vec![10_000, 100_000]);
     let threads: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(1);
     let repeats: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(5).max(1);
-    println!("| points | start | starts setting | median s | iterations | starts run | max entry error | verdict | time ratio |");
+    println!(
+        "| points | start | starts setting | median s | iterations | starts run | max entry error | verdict | time ratio |"
+    );
     println!("|---|---|---|---|---|---|---|---|---|");
     for points in sizes {
         let scene = room_scene(points, 0.01, 1);
-        let near: Matrix4<f64> = Translation3::new(0.01, -0.005, 0.0).to_homogeneous() * scene.t_target_source;
+        let near: Matrix4<f64> =
+            Translation3::new(0.01, -0.005, 0.0).to_homogeneous() * scene.t_target_source;
         for (label, init) in [("identity", None), ("guess 1 cm off", Some(near))] {
             let mut single = f64::NAN;
             for starts in [Starts::InitialGuess, Starts::Automatic] {
@@ -37,8 +40,15 @@ fn main() {
                 let mut last: Option<RegistrationResult> = None;
                 for _ in 0..repeats {
                     let began = Instant::now();
-                    let result = register_clouds(&scene.source, &scene.target, None, init.as_ref(), &config, Hooks::default())
-                        .expect("synthetic input is valid");
+                    let result = register_clouds(
+                        &scene.source,
+                        &scene.target,
+                        None,
+                        init.as_ref(),
+                        &config,
+                        Hooks::default(),
+                    )
+                    .expect("synthetic input is valid");
                     times.push(began.elapsed().as_secs_f64());
                     last = Some(result);
                 }

@@ -37,7 +37,9 @@ fn main() -> Result<(), String> {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"))
         .join("slambook-joinmap-rgbd");
     let poses = read_poses(&data.join("pose.txt"))?;
-    println!("| pair | invalid pixels | kept as | points (source + target) | seconds | iterations | rotation error (°) | translation error (mm) |");
+    println!(
+        "| pair | invalid pixels | kept as | points (source + target) | seconds | iterations | rotation error (°) | translation error (mm) |"
+    );
     println!("|---|---:|---|---:|---:|---:|---:|---:|");
     for (source_frame, target_frame) in [(3, 2), (4, 3), (5, 4)] {
         let source = back_project(&data.join(format!("depth/{source_frame}.pgm")))?;
@@ -56,7 +58,8 @@ fn main() -> Result<(), String> {
                 ..RegistrationConfig::default()
             };
             let started = Instant::now();
-            let result = register_clouds(&source, &target, None, None, &config, Hooks::default()).map_err(|e| e.to_string())?;
+            let result = register_clouds(&source, &target, None, None, &config, Hooks::default())
+                .map_err(|e| e.to_string())?;
             let seconds = started.elapsed().as_secs_f64();
             if std::env::var_os("SIE_STAGES").is_some() {
                 eprintln!("{:?}", result.times);
@@ -66,7 +69,11 @@ fn main() -> Result<(), String> {
                 "| {source_frame} → {target_frame} | {:.0} % + {:.0} % | {} | {} + {} | {seconds:.2} | {} | {:.2} | {:.1} |",
                 100.0 * invalid(&source) as f64 / source.len() as f64,
                 100.0 * invalid(&target) as f64 / target.len() as f64,
-                if skip_origin { "dropped (skip_origin)" } else { "0 0 0 (duplicates)" },
+                if skip_origin {
+                    "dropped (skip_origin)"
+                } else {
+                    "0 0 0 (duplicates)"
+                },
                 source.len(),
                 target.len(),
                 result.iterations,

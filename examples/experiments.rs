@@ -39,8 +39,8 @@ use report::{duration, replace_section, sci, table, write_csv};
 use scans::{PairCase, ScanRun};
 use sie::{GammaRule, Hooks, register_clouds, register_correspondences};
 use simulation::{
-    Cell, CellStats, Method, Motion, NOISE_SIGMA, Noise, OUTLIER_LEVELS, STEPS, VerdictTally, appendix_methods, grid_cells,
-    instance, instance_seed, paper_methods, run_cell,
+    Cell, CellStats, Method, Motion, NOISE_SIGMA, Noise, OUTLIER_LEVELS, STEPS, VerdictTally,
+    appendix_methods, grid_cells, instance, instance_seed, paper_methods, run_cell,
 };
 
 struct Options {
@@ -293,7 +293,13 @@ fn grid_csv(path: &Path, grid: &GridResult, methods: &[Method]) -> Result<(), St
 fn verdict_line(what: &str, t: &VerdictTally) -> String {
     let right = t.right_good + t.right_not_good;
     let wrong = t.wrong_good + t.wrong_not_good;
-    let rate = |n: usize, of: usize| if of == 0 { "–".to_string() } else { format!("{:.1} %", 100.0 * n as f64 / of as f64) };
+    let rate = |n: usize, of: usize| {
+        if of == 0 {
+            "–".to_string()
+        } else {
+            format!("{:.1} %", 100.0 * n as f64 / of as f64)
+        }
+    };
     format!(
         "SIE's quality verdict on {what}: {right} right runs, {} called GOOD, {} not (false \"bad\": {}); \
          {wrong} wrong runs, {} called GOOD (false \"good\": {}), {} of them more than 5× the failure bound off.\n",
@@ -876,7 +882,11 @@ fn scan_report(cases: &[PairCase], runs: &[ScanRun], left_out: &[scans::LeftOut]
         let mut row = vec![name.to_string()];
         for m in 0..methods.len() {
             let set = of_set(m);
-            row.push(format!("{}/{}", set.iter().filter(|r| r.success).count(), set.len()));
+            row.push(format!(
+                "{}/{}",
+                set.iter().filter(|r| r.success).count(),
+                set.len()
+            ));
         }
         success_rows.push(row);
         let mut tally = VerdictTally::default();

@@ -71,11 +71,13 @@ fn main() {
     // peak of preparing it shows apart from the registration's.
     let start = Instant::now();
     let (source, target, caller_clouds) = if float_input {
-        let narrow = |cloud: &[sie::Point]| -> Vec<[f32; 3]> { cloud.iter().map(|p| p.map(|c| c as f32)).collect() };
+        let narrow =
+            |cloud: &[sie::Point]| -> Vec<[f32; 3]> { cloud.iter().map(|p| p.map(|c| c as f32)).collect() };
         let caller = (narrow(&scene.source), narrow(&scene.target));
         drop(scene);
         println!("float32 clouds: current RSS {:.0} MiB", current_rss_mib());
-        let widen = |cloud: &[[f32; 3]]| -> Vec<sie::Point> { cloud.iter().map(|p| p.map(f64::from)).collect() };
+        let widen =
+            |cloud: &[[f32; 3]]| -> Vec<sie::Point> { cloud.iter().map(|p| p.map(f64::from)).collect() };
         let (source, target) = (widen(&caller.0), widen(&caller.1));
         let prepared = PreparedTarget::new(&target, None, &options).expect("target");
         drop(target);

@@ -275,7 +275,11 @@ pub fn weighted_rigid_fit_by(
     Some(solve)
 }
 
-fn unscaled_rigid_fit(count: usize, pair: impl Fn(usize) -> (Point, Point), weights: &[f64]) -> Option<Solve> {
+fn unscaled_rigid_fit(
+    count: usize,
+    pair: impl Fn(usize) -> (Point, Point),
+    weights: &[f64],
+) -> Option<Solve> {
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
         return None;

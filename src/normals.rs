@@ -1,8 +1,8 @@
 //! Surface normals by k-nearest-neighbour PCA, for point-to-plane ICP when the target cloud
 //! comes without normals.
+use crate::geometry::{Point, cross, dot, splitmix64};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
-use crate::geometry::{Point, cross, dot, splitmix64};
 
 /// A neighbourhood counts as a line (or a single point) when its middle covariance eigenvalue
 /// is below about this fraction of the largest: no plane, hence no normal. Exactly collinear

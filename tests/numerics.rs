@@ -4,8 +4,8 @@
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
-    Error, HistogramMode, Hooks, Metric, NoiseScales, CloudRole, Point, RegistrationConfig, RegistrationResult, SieOptions,
-    StopReason, estimate_inliers, register_clouds, register_correspondences,
+    CloudRole, Error, HistogramMode, Hooks, Metric, NoiseScales, Point, RegistrationConfig,
+    RegistrationResult, SieOptions, StopReason, estimate_inliers, register_clouds, register_correspondences,
 };
 
 fn scaled(points: &[Point], factor: f64) -> Vec<Point> {
@@ -43,15 +43,24 @@ fn correspondences_at_any_scale() {
             Hooks::default(),
         )
         .unwrap_or_else(|e| panic!("scale {scale:e}: {e}"));
-        assert!(all_finite(&result), "scale {scale:e}: σ {:?}, rmse {}", result.sigma, result.rmse);
+        assert!(
+            all_finite(&result),
+            "scale {scale:e}: σ {:?}, rmse {}",
+            result.sigma,
+            result.rmse
+        );
         assert_eq!(result.stop_reason, StopReason::Converged, "scale {scale:e}");
         let rotation = (result.transform.fixed_view::<3, 3>(0, 0) - base.transform.fixed_view::<3, 3>(0, 0))
             .abs()
             .max();
-        let translation = (result.transform.fixed_view::<3, 1>(0, 3) / scale - base.transform.fixed_view::<3, 1>(0, 3))
-            .abs()
-            .max();
-        assert!(rotation < 1e-9 && translation < 1e-9, "scale {scale:e}: {rotation:e} {translation:e}");
+        let translation = (result.transform.fixed_view::<3, 1>(0, 3) / scale
+            - base.transform.fixed_view::<3, 1>(0, 3))
+        .abs()
+        .max();
+        assert!(
+            rotation < 1e-9 && translation < 1e-9,
+            "scale {scale:e}: {rotation:e} {translation:e}"
+        );
         assert!((result.sigma[0] / scale - base.sigma[0]).abs() < 1e-9 * base.sigma[0].max(1e-300));
     }
 }
@@ -62,12 +71,22 @@ fn one_gross_outlier_among_good_pairs() {
     let data = paper_simulation(800, 0, 0.01, &t0(), 4);
     let mut source = data.source.clone();
     source[17] = [1e160, 0.0, 0.0];
-    let result = register_correspondences(&source, &data.target, None, &RegistrationConfig::default(), Hooks::default())
-        .unwrap();
+    let result = register_correspondences(
+        &source,
+        &data.target,
+        None,
+        &RegistrationConfig::default(),
+        Hooks::default(),
+    )
+    .unwrap();
     assert!(all_finite(&result), "σ {:?}, rmse {}", result.sigma, result.rmse);
     assert_eq!(result.stop_reason, StopReason::Converged);
     let truth = t0().try_inverse().unwrap();
-    assert!((result.transform - truth).abs().max() < 0.01, "{}", result.transform);
+    assert!(
+        (result.transform - truth).abs().max() < 0.01,
+        "{}",
+        result.transform
+    );
     assert!(result.probabilities[17] < 1e-6);
     assert!(result.iterations > 0);
 }
@@ -81,7 +100,15 @@ fn clouds_at_extreme_scales() {
             metric,
             ..RegistrationConfig::default()
         };
-        let base = register_clouds(&scene.source, &scene.target, None, None, &config, Hooks::default()).unwrap();
+        let base = register_clouds(
+            &scene.source,
+            &scene.target,
+            None,
+            None,
+            &config,
+            Hooks::default(),
+        )
+        .unwrap();
         for scale in [1e-160, 1e77, 1e160] {
             let result = register_clouds(
                 &scaled(&scene.source, scale),
@@ -108,7 +135,13 @@ fn clouds_at_extreme_scales() {
 fn an_initial_guess_beyond_arithmetic_is_refused() {
     let data = paper_simulation(200, 0, 0.01, &t0(), 6);
     let far = Translation3::new(1e300, 0.0, 0.0).to_homogeneous();
-    let outcome = register_correspondences(&data.source, &data.target, Some(&far), &RegistrationConfig::default(), Hooks::default());
+    let outcome = register_correspondences(
+        &data.source,
+        &data.target,
+        Some(&far),
+        &RegistrationConfig::default(),
+        Hooks::default(),
+    );
     match outcome {
         Err(Error::InvalidArgument(message)) => assert!(message.contains("initial guess"), "{message}"),
         Ok(result) => {
@@ -126,7 +159,12 @@ fn an_initial_guess_beyond_arithmetic_is_refused() {
 fn constant_noise_callback_of_any_magnitude() {
     struct Constant(f64);
     impl NoiseScales for Constant {
-        fn point_sigmas(&mut self, _role: CloudRole, points: &[[f64; 3]], out: &mut [f64]) -> Result<(), String> {
+        fn point_sigmas(
+            &mut self,
+            _role: CloudRole,
+            points: &[[f64; 3]],
+            out: &mut [f64],
+        ) -> Result<(), String> {
             out.iter_mut().for_each(|s| *s = self.0);
             let _ = points;
             Ok(())
@@ -137,10 +175,19 @@ fn constant_noise_callback_of_any_magnitude() {
     let base = register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
     for sigma in [1e-160, 1e-120, 1e-80, 1.0, 1e80, 1e160] {
         let mut noise = Constant(sigma);
-        let result = register_correspondences(&data.source, &data.target, None, &config, Hooks::noise(Some(&mut noise)))
-            .unwrap_or_else(|e| panic!("σ {sigma:e}: {e}"));
+        let result = register_correspondences(
+            &data.source,
+            &data.target,
+            None,
+            &config,
+            Hooks::noise(Some(&mut noise)),
+        )
+        .unwrap_or_else(|e| panic!("σ {sigma:e}: {e}"));
         assert!(all_finite(&result), "σ {sigma:e}");
-        assert!((result.transform - base.transform).abs().max() < 1e-9, "σ {sigma:e}");
+        assert!(
+            (result.transform - base.transform).abs().max() < 1e-9,
+            "σ {sigma:e}"
+        );
     }
 }
 
@@ -148,9 +195,20 @@ fn constant_noise_callback_of_any_magnitude() {
 #[test]
 fn noise_free_correspondences_converge() {
     let data = paper_simulation(300, 0, 0.0, &t0(), 8);
-    let result = register_correspondences(&data.source, &data.target, None, &RegistrationConfig::default(), Hooks::default())
-        .unwrap();
-    assert_eq!(result.stop_reason, StopReason::Converged, "{:?}", result.stop_reason);
+    let result = register_correspondences(
+        &data.source,
+        &data.target,
+        None,
+        &RegistrationConfig::default(),
+        Hooks::default(),
+    )
+    .unwrap();
+    assert_eq!(
+        result.stop_reason,
+        StopReason::Converged,
+        "{:?}",
+        result.stop_reason
+    );
     assert!(result.converged);
     assert!((result.transform - t0().try_inverse().unwrap()).abs().max() < 1e-9);
     assert!(result.inlier_fraction > 0.95, "{}", result.inlier_fraction);
@@ -164,7 +222,9 @@ fn planar_correspondences() {
         * Rotation3::from_axis_angle(&Vector3::z_axis(), 0.3).to_homogeneous();
     let mut rng_state = 12345u64;
     let mut uniform = || {
-        rng_state = rng_state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        rng_state = rng_state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (rng_state >> 11) as f64 / (1u64 << 53) as f64
     };
     let (mut source, mut target) = (Vec::new(), Vec::new());
@@ -173,12 +233,27 @@ fn planar_correspondences() {
         let p = sie::geometry::transform_point(&truth, &a);
         source.push(a);
         // Gaussian noise of σ = 0.003 in the plane (Box–Muller).
-        let (radius, angle) = ((-2.0 * uniform().max(1e-300).ln()).sqrt(), std::f64::consts::TAU * uniform());
-        target.push([p[0] + 0.003 * radius * angle.cos(), p[1] + 0.003 * radius * angle.sin(), 0.0]);
+        let (radius, angle) = (
+            (-2.0 * uniform().max(1e-300).ln()).sqrt(),
+            std::f64::consts::TAU * uniform(),
+        );
+        target.push([
+            p[0] + 0.003 * radius * angle.cos(),
+            p[1] + 0.003 * radius * angle.sin(),
+            0.0,
+        ]);
     }
-    let result = register_correspondences(&source, &target, None, &RegistrationConfig::default(), Hooks::default()).unwrap();
-    let angle = sie::geometry::rotation_angle(&(sie::geometry::rotation_part(&result.transform)
-        * sie::geometry::rotation_part(&truth).transpose()));
+    let result = register_correspondences(
+        &source,
+        &target,
+        None,
+        &RegistrationConfig::default(),
+        Hooks::default(),
+    )
+    .unwrap();
+    let angle = sie::geometry::rotation_angle(
+        &(sie::geometry::rotation_part(&result.transform) * sie::geometry::rotation_part(&truth).transpose()),
+    );
     assert!(angle < 0.01, "{} deg off", angle.to_degrees());
     assert!(result.inlier_fraction > 0.8, "{}", result.inlier_fraction);
     assert_eq!(result.stop_reason, StopReason::Converged);
@@ -192,7 +267,9 @@ fn estimate_inliers_degenerate_inputs() {
     let mut normal = || {
         // Box–Muller on a small LCG: deterministic N(0, 1) draws.
         let mut u = || {
-            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
         };
         let (a, b) = (u(), u());
@@ -214,7 +291,10 @@ fn estimate_inliers_degenerate_inputs() {
         }
     }
     let wide = estimate_inliers(&residuals, 3, None, f64::MAX, &SieOptions::default()).unwrap();
-    assert!(wide.probabilities.iter().all(|p| *p > 0.9), "β = DBL_MAX: every row inside the model");
+    assert!(
+        wide.probabilities.iter().all(|p| *p > 0.9),
+        "β = DBL_MAX: every row inside the model"
+    );
     let flat = vec![0.5; 600];
     for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
         let options = SieOptions {
@@ -222,6 +302,10 @@ fn estimate_inliers_degenerate_inputs() {
             ..SieOptions::default()
         };
         let estimate = estimate_inliers(&flat, 3, None, 0.0, &options).unwrap();
-        assert!(estimate.probabilities.iter().all(|p| *p > 0.9), "{histogram:?}: {:?}", &estimate.probabilities[..3]);
+        assert!(
+            estimate.probabilities.iter().all(|p| *p > 0.9),
+            "{histogram:?}: {:?}",
+            &estimate.probabilities[..3]
+        );
     }
 }

@@ -6,8 +6,8 @@ use rand::SeedableRng;
 use sie::geometry::{rotation_part, transform_point, weighted_rigid_fit};
 use sie::synthetic::{paper_simulation, random_motion, room_scene};
 use sie::{
-    CostFunction, HistogramMode, Hooks, Metric, NoiseShape, Point, RegistrationConfig, SieOptions,
-    Verdict, estimate_inliers, register_clouds, register_correspondences,
+    CostFunction, HistogramMode, Hooks, Metric, NoiseShape, Point, RegistrationConfig, SieOptions, Verdict,
+    estimate_inliers, register_clouds, register_correspondences,
 };
 
 fn is_proper_rotation(t: &Matrix4<f64>) -> bool {

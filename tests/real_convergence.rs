@@ -7,11 +7,11 @@
 #![cfg(feature = "io")]
 #![allow(dead_code)]
 
-#[path = "../examples/experiments/simulation.rs"]
-mod simulation;
+mod common;
 #[path = "../examples/experiments/scans.rs"]
 mod scans;
-mod common;
+#[path = "../examples/experiments/simulation.rs"]
+mod simulation;
 
 use common::data_dir;
 use sie::{Hooks, StopReason, register_clouds};
@@ -25,8 +25,15 @@ fn kinect_frames_that_cycled_at_the_cap_now_converge_where_right() {
         let methods = case.methods();
         let sie = &methods[0];
         assert_eq!(sie.key, "sie");
-        let result = register_clouds(&case.source, &case.target, None, None, &sie.config, Hooks::default())
-            .expect("valid frames");
+        let result = register_clouds(
+            &case.source,
+            &case.target,
+            None,
+            None,
+            &sie.config,
+            Hooks::default(),
+        )
+        .expect("valid frames");
         let errors = case.errors(&result.transform);
         println!(
             "{} {} -> {}: {:.3} deg, {:.4} m, {:?} after {} updates ({} starts), verdict {:?}",

@@ -12,8 +12,8 @@ mod simulation;
 use std::f64::consts::PI;
 
 use beyond::{Draw, Family, families};
-use simulation::{ErrorMetric, FAILURE_THRESHOLD, Reference};
 use sie::{Hooks, RegistrationConfig, StartKind, Starts, register_correspondences};
+use simulation::{ErrorMetric, FAILURE_THRESHOLD, Reference};
 
 /// Registers instances `0..instances` of `family` with SIE's defaults; asserts no failure and a
 /// mean error of the successes below 1e-6 (the paper's precision claim).
@@ -41,7 +41,10 @@ fn check(family: &Family, instances: usize) {
         errors.push(error);
     }
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-    println!("{}: {instances} instances, no failure, mean error {mean:.2e}", family.label());
+    println!(
+        "{}: {instances} instances, no failure, mean error {mean:.2e}",
+        family.label()
+    );
     assert!(mean < 1e-6, "{}: mean error {mean:.3e}", family.label());
 }
 
@@ -74,23 +77,30 @@ fn the_summary_says_which_start_decided() {
     let reference = Reference::new(&data, ErrorMetric::Rms);
     // From the identity the inliers' pose is far away: a hypothesis decides.
     let config = RegistrationConfig::default();
-    let result = register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
+    let result =
+        register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
     assert_eq!(result.search.start, StartKind::Hypothesis);
     assert!(result.search.hypotheses >= 32 && result.search.starts_run >= 1);
     assert!(result.search.significance > 1000.0, "{:?}", result.search);
     assert!(reference.error(&result.transform) < 1e-6);
     // Started at the inliers' fit, the initial guess wins (or a hypothesis in its basin) and
     // the fit is kept.
-    let from_truth =
-        register_correspondences(&data.source, &data.target, Some(&reference.mle), &config, Hooks::default())
-            .unwrap();
+    let from_truth = register_correspondences(
+        &data.source,
+        &data.target,
+        Some(&reference.mle),
+        &config,
+        Hooks::default(),
+    )
+    .unwrap();
     assert!(reference.error(&from_truth.transform) < 1e-6);
     // The paper's method alone: no search, the initial guess decides.
     let paper_only = RegistrationConfig {
         starts: Starts::InitialGuess,
         ..RegistrationConfig::default()
     };
-    let local = register_correspondences(&data.source, &data.target, None, &paper_only, Hooks::default()).unwrap();
+    let local =
+        register_correspondences(&data.source, &data.target, None, &paper_only, Hooks::default()).unwrap();
     assert_eq!(local.search.start, StartKind::InitialGuess);
     assert_eq!((local.search.hypotheses, local.search.starts_run), (0, 1));
 }

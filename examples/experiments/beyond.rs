@@ -61,7 +61,11 @@ impl Family {
             Draw::Translation(shift) => 10_000 + (shift * 1000.0) as u64,
             Draw::Combined => 20_000,
         };
-        0xBE70_0000_0000 + (draw << 32) + ((self.outliers as u64) << 12) + ((self.structured as u64) << 24) + index as u64
+        0xBE70_0000_0000
+            + (draw << 32)
+            + ((self.outliers as u64) << 12)
+            + ((self.structured as u64) << 24)
+            + index as u64
     }
 
     /// Instance `index` of this family.
@@ -80,7 +84,15 @@ impl Family {
             let (angle, shift) = (rng.random_range(0.3..PI), rng.random_range(0.3..1.0));
             random_motion(&mut rng, angle, shift)
         };
-        structured_simulation(INLIERS, self.outliers, self.structured, NOISE_SIGMA, &t0, &other, seed)
+        structured_simulation(
+            INLIERS,
+            self.outliers,
+            self.structured,
+            NOISE_SIGMA,
+            &t0,
+            &other,
+            seed,
+        )
     }
 }
 

@@ -6,7 +6,8 @@ use nalgebra::Matrix4;
 
 use super::problem::{Problem, Rows};
 use super::{
-    Error, Observer, Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
+    Error, Observer, Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind,
+    StopReason, TraceEntry,
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
@@ -281,12 +282,13 @@ pub(crate) fn run(
             && cycle_translation <= config.translation_tolerance
             && cycle_rotation <= config.rotation_tolerance;
         travelling = displacement > TRAVEL_WIDTHS * weighting.width();
-        let converged = !(coarse_allowed && travelling) && match weighting.after_update(below_tolerance, displacement) {
-            Convergence::NotYet => false,
-            Convergence::Tolerance => below_tolerance,
-            Convergence::ToleranceOrCycle => below_tolerance || two_cycle,
-            Convergence::Resolved => true,
-        };
+        let converged = !(coarse_allowed && travelling)
+            && match weighting.after_update(below_tolerance, displacement) {
+                Convergence::NotYet => false,
+                Convergence::Tolerance => below_tolerance,
+                Convergence::ToleranceOrCycle => below_tolerance || two_cycle,
+                Convergence::Resolved => true,
+            };
         if converged {
             stop = StopReason::Converged;
             break;

@@ -129,4 +129,3 @@ pub(crate) fn noise_sigmas(
     let t = cloud_sigmas(scales, CloudRole::Target, target).map_err(Error::Callback)?;
     Ok((Some(s), Some(t)))
 }
-

@@ -5,23 +5,22 @@ use std::time::Instant;
 use nalgebra::Matrix4;
 
 use super::driver::run;
-use super::input::{
-    Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points,
-};
+use super::input::{Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points};
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::units::Units;
 use super::{
-    Hooks, Metric, Observer, TraceEntry, Verdict, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
+    Hooks, Metric, Observer, RegistrationConfig, RegistrationResult, StartKind, Starts, StopReason,
+    TraceEntry, Verdict,
 };
 use crate::cost::CostFunction;
-use crate::sie::hypotheses::{self, Pairs};
-use crate::sie::significance::{self, Background};
-use crate::sie::starts::{CLOUD_STARTS, LEAD_ROTATION_TOLERANCE, LEAD_TRANSLATION_FRACTION, Lead};
 use crate::error::Error;
 use crate::geometry::Point;
 use crate::noise::{NoiseModel, NoiseScales};
 use crate::parallel::Workers;
+use crate::sie::hypotheses::{self, Pairs};
+use crate::sie::significance::{self, Background};
+use crate::sie::starts::{CLOUD_STARTS, LEAD_ROTATION_TOLERANCE, LEAD_TRANSLATION_FRACTION, Lead};
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
 pub fn register_correspondences(
@@ -71,10 +70,21 @@ pub fn register_correspondences(
         correspondences_on(&mut problem, source, target, init, config, hooks.observer)?
     } else {
         let (source, target) = (units.points(source), units.points(target));
-        let mut problem =
-            CorrespondenceProblem::new(&source, &target, units.sigmas(source_sigma), units.sigmas(target_sigma));
+        let mut problem = CorrespondenceProblem::new(
+            &source,
+            &target,
+            units.sigmas(source_sigma),
+            units.sigmas(target_sigma),
+        );
         let mut result = in_units(&units, hooks.observer, |observer| {
-            correspondences_on(&mut problem, &source, &target, units.transform_in(&init), config, observer)
+            correspondences_on(
+                &mut problem,
+                &source,
+                &target,
+                units.transform_in(&init),
+                config,
+                observer,
+            )
         })?;
         units.result_out(&mut result);
         result
@@ -114,7 +124,11 @@ fn correspondences_on(
 }
 
 fn sigma_slices<'a>(source: &'a Option<Vec<f64>>, target: &'a Option<Vec<f64>>) -> Vec<&'a [f64]> {
-    [source, target].into_iter().flatten().map(Vec::as_slice).collect()
+    [source, target]
+        .into_iter()
+        .flatten()
+        .map(Vec::as_slice)
+        .collect()
 }
 
 /// Runs `register` in changed units with an observer that sees every trace entry in the
@@ -187,7 +201,13 @@ fn register_from_hypotheses(
             initial_beta: Some(start.cluster.radius / 3f64.sqrt()),
             ..config.clone()
         };
-        let result = run(problem, start.transform, best.next_iteration, &start_config, observer.as_deref_mut())?;
+        let result = run(
+            problem,
+            start.transform,
+            best.next_iteration,
+            &start_config,
+            observer.as_deref_mut(),
+        )?;
         let kind = if start.is_initial_guess {
             StartKind::InitialGuess
         } else {
@@ -251,15 +271,16 @@ impl BestOfStarts {
             Some((best_significance, best)) => {
                 significance > *best_significance
                     && (significance > SAME_POSE_TIE * *best_significance || {
-                    let best_precision = self
-                        .ends
-                        .iter()
-                        .find(|end| end.0 == best.transform)
-                        .map_or(precision, |end| end.2);
-                    let typical_scale = median(problem.rows().scale.clone());
-                    let apart = moved_apart(problem.source_points(), &best.transform, &result.transform) / typical_scale;
-                    apart > SAME_POSE_ERRORS * precision.max(best_precision)
-                })
+                        let best_precision = self
+                            .ends
+                            .iter()
+                            .find(|end| end.0 == best.transform)
+                            .map_or(precision, |end| end.2);
+                        let typical_scale = median(problem.rows().scale.clone());
+                        let apart = moved_apart(problem.source_points(), &best.transform, &result.transform)
+                            / typical_scale;
+                        apart > SAME_POSE_ERRORS * precision.max(best_precision)
+                    })
             }
         };
         if cancelled || replaces {
@@ -347,7 +368,11 @@ impl Evidence {
         let cluster = significance::at_scale(&norms, &self.background, sigma);
         result.quality.significance = cluster.significance;
         result.quality.sigma_to_spacing = self.spacing.map_or(0.0, |spacing| {
-            if spacing > 0.0 { sigma / spacing } else { f64::INFINITY }
+            if spacing > 0.0 {
+                sigma / spacing
+            } else {
+                f64::INFINITY
+            }
         });
         cluster
     }
@@ -373,7 +398,10 @@ fn verdict(result: &RegistrationResult) -> Verdict {
         return Verdict::Unsupported;
     }
     // A histogram without spread (exact data) has every sample at its peak.
-    let peak = result.histograms.iter().all(|h| h.peak_found || h.shape.sigma == 0.0);
+    let peak = result
+        .histograms
+        .iter()
+        .all(|h| h.peak_found || h.shape.sigma == 0.0);
     let good = peak
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
@@ -398,7 +426,11 @@ fn moved_apart(points: &[Point], a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
         let d = crate::geometry::transform_point(&difference, p);
         (sum + d[0] * d[0] + d[1] * d[1] + d[2] * d[2], n + 1)
     });
-    if count == 0 { 0.0 } else { (sum / count as f64).sqrt() }
+    if count == 0 {
+        0.0
+    } else {
+        (sum / count as f64).sqrt()
+    }
 }
 
 /// Median (1 for none).
@@ -623,7 +655,8 @@ fn register_cloud_problem(
     config: &RegistrationConfig,
     observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
-    if config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none() {
+    if config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none()
+    {
         register_from_starts(problem, init, config, observer)
     } else {
         let evidence = Evidence::of_clouds(problem, &init);
@@ -653,7 +686,11 @@ fn register_from_starts(
     let cols = problem.cols();
     let evidence = Evidence::of_clouds(problem, &init);
     let rms = (evidence.background.spread_squared / cols as f64).sqrt();
-    let starts = if evidence.exact_start { &CLOUD_STARTS[..1] } else { &CLOUD_STARTS[..] };
+    let starts = if evidence.exact_start {
+        &CLOUD_STARTS[..1]
+    } else {
+        &CLOUD_STARTS[..]
+    };
     let mut best = BestOfStarts::new(evidence);
     for start in starts {
         let (from, kind) = match start.lead {
@@ -678,12 +715,22 @@ fn register_from_starts(
                 (led.transform, StartKind::ScaleFreeLead)
             }
         };
-        let kind = if start.beta_fraction < 1.0 { StartKind::NarrowBeta } else { kind };
+        let kind = if start.beta_fraction < 1.0 {
+            StartKind::NarrowBeta
+        } else {
+            kind
+        };
         let start_config = RegistrationConfig {
             initial_beta: (start.beta_fraction < 1.0).then_some(start.beta_fraction * rms),
             ..config.clone()
         };
-        let result = run(problem, from, best.next_iteration, &start_config, observer.as_deref_mut())?;
+        let result = run(
+            problem,
+            from,
+            best.next_iteration,
+            &start_config,
+            observer.as_deref_mut(),
+        )?;
         // Only a converged run can show the guess was right (one stopped at the cap while β was
         // still wide has not looked closely yet).
         let stayed = kind == StartKind::InitialGuess

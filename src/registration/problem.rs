@@ -121,7 +121,10 @@ fn typical_magnitude(points: &[Point]) -> f64 {
     if points.is_empty() {
         return 0.0;
     }
-    let mut magnitudes: Vec<f64> = points.iter().map(|p| p.iter().fold(0.0f64, |m, v| m.max(v.abs()))).collect();
+    let mut magnitudes: Vec<f64> = points
+        .iter()
+        .map(|p| p.iter().fold(0.0f64, |m, v| m.max(v.abs())))
+        .collect();
     let mid = magnitudes.len() / 2;
     *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1
 }
@@ -565,7 +568,10 @@ impl CloudProblem<'_> {
         let sample: Vec<Point> = points.iter().step_by(step).copied().collect();
         let n = sample.len().max(1) as f64;
         let centre: Point = std::array::from_fn(|axis| sample.iter().map(|p| p[axis]).sum::<f64>() / n);
-        let sum: f64 = sample.iter().map(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>()).sum();
+        let sum: f64 = sample
+            .iter()
+            .map(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>())
+            .sum();
         (sum / n).sqrt()
     }
 

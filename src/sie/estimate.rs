@@ -42,7 +42,9 @@ pub fn estimate_inliers(
     }
     let rows = residuals.len() / cols;
     if rows == 0 {
-        return Err(Error::TooFewPoints("residual rows: 0 given, at least 1 needed".into()));
+        return Err(Error::TooFewPoints(
+            "residual rows: 0 given, at least 1 needed".into(),
+        ));
     }
     if let Some(i) = residuals.iter().position(|v| !v.is_finite()) {
         return Err(Error::NonFinite(format!("residuals[{i}] is {}", residuals[i])));
@@ -126,6 +128,9 @@ fn residual_unit(residuals: &[f64]) -> f64 {
     }
     let mid = magnitudes.len() / 2;
     let median = *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1;
-    if (1.0 / SAFE..=SAFE).contains(&median) { 1.0 } else { median }
+    if (1.0 / SAFE..=SAFE).contains(&median) {
+        1.0
+    } else {
+        median
+    }
 }
-

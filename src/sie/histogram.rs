@@ -143,7 +143,9 @@ impl HistogramModel {
         samples: impl Fn() -> I,
     ) {
         self.samples_total = samples().count();
-        let (low, high) = samples().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| (l.min(x), h.max(x)));
+        let (low, high) = samples().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), x| {
+            (l.min(x), h.max(x))
+        });
         if low == high {
             // Every sample the same (exact data, or one value repeated): each is as likely an
             // inlier as the cap allows, whatever μ = 0 of a pooled |r| histogram assumes.

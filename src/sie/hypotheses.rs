@@ -179,7 +179,13 @@ fn guided_sample(pairs: &Pairs<'_>, rng: &mut Xoshiro256PlusPlus) -> Option<Matr
         }
         best.0
     };
-    let j = best_of(rng, &|j| if j == i { f64::INFINITY } else { pairs.distortion(i, j) });
+    let j = best_of(rng, &|j| {
+        if j == i {
+            f64::INFINITY
+        } else {
+            pairs.distortion(i, j)
+        }
+    });
     if j == usize::MAX {
         return None;
     }
@@ -277,7 +283,8 @@ impl SourceMoments {
     fn rms_distance(&self, a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
         let d = rotation_part(a) - rotation_part(b);
         let dt = translation_part(a) - translation_part(b);
-        let squared = (d.transpose() * d * self.second).trace() + 2.0 * dt.dot(&(d * self.mean)) + dt.norm_squared();
+        let squared =
+            (d.transpose() * d * self.second).trace() + 2.0 * dt.dot(&(d * self.mean)) + dt.norm_squared();
         squared.max(0.0).sqrt()
     }
 }

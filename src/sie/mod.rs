@@ -270,7 +270,9 @@ impl SieEstimator {
         // Below the smallest σ the data can show, narrowing β further changes nothing (noise-free
         // residuals fit σ = 0: "β ≪ σ" would never hold).
         let floor = self.options.min_sigma;
-        self.models.iter().all(|m| m.beta <= ratio * m.shape.sigma.max(floor))
+        self.models
+            .iter()
+            .all(|m| m.beta <= ratio * m.shape.sigma.max(floor))
     }
 
     /// Creates the models for this residual layout without fitting (so β can be set first).
@@ -340,13 +342,17 @@ impl SieEstimator {
             return sum / rows as f64;
         }
         // Columns without spread (pooled mode) carry no evidence and take no part.
-        let active = |j: usize| self.options.histogram == HistogramMode::PerColumn || self.active.get(j).copied().unwrap_or(true);
+        let active = |j: usize| {
+            self.options.histogram == HistogramMode::PerColumn || self.active.get(j).copied().unwrap_or(true)
+        };
         let columns = (0..cols).filter(|&j| active(j)).count().max(1);
         let (total, count) = residuals
             .iter()
             .enumerate()
             .filter(|(idx, _)| active(idx % cols))
-            .fold((0.0, 0usize), |(sum, n), (idx, &r)| (sum + self.component_probability(r, idx % cols), n + 1));
+            .fold((0.0, 0usize), |(sum, n), (idx, &r)| {
+                (sum + self.component_probability(r, idx % cols), n + 1)
+            });
         let prior = (total / count.max(1) as f64).clamp(1e-9, 1.0 - 1e-9);
         // §4.2: γ = (P(I)/P(O))^(m-1), kept as a logarithm: with hundreds of columns the
         // products below leave f64's range (200 columns of N(0, 1) gave P = 0 for every row).
@@ -400,7 +406,9 @@ fn active_columns(residuals: &[f64], cols: usize) -> Vec<bool> {
         .map(|j| root_mean_square(residuals.iter().skip(j).step_by(cols).copied()))
         .collect();
     let largest = rms.iter().copied().fold(0.0, f64::max);
-    rms.iter().map(|&r| largest == 0.0 || r > SILENT_COLUMN * largest).collect()
+    rms.iter()
+        .map(|&r| largest == 0.0 || r > SILENT_COLUMN * largest)
+        .collect()
 }
 
 /// Residuals larger than this (normalised units) are outliers whatever the model: their squares

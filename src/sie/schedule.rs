@@ -185,7 +185,8 @@ impl Schedule {
     /// σ·√(6/n) RMS, with n = Σ P(I|R_i) the effective number of inliers.
     pub fn precision(&self) -> f64 {
         let models = self.estimator.models();
-        let sigma = (models.iter().map(|m| m.shape.sigma.powi(2)).sum::<f64>() / models.len().max(1) as f64).sqrt();
+        let sigma =
+            (models.iter().map(|m| m.shape.sigma.powi(2)).sum::<f64>() / models.len().max(1) as f64).sqrt();
         sigma * (RIGID_DOF / self.inlier_mass.max(1.0)).sqrt()
     }
 

@@ -122,9 +122,9 @@ pub fn at_scale(squared_norms: &[f64], background: &Background, sigma: f64) -> C
     let quantile = m * (1.0 - 2.0 / (9.0 * m) + 2.326 * (2.0 / (9.0 * m)).sqrt()).powi(3);
     let radius_squared = sigma * sigma * quantile;
     let count = squared_norms.iter().filter(|&&v| v <= radius_squared).count();
-    let significance = background
-        .log_probability(radius_squared)
-        .map_or(0.0, |log_p| tail_bound(count as f64, squared_norms.len() as f64, log_p));
+    let significance = background.log_probability(radius_squared).map_or(0.0, |log_p| {
+        tail_bound(count as f64, squared_norms.len() as f64, log_p)
+    });
     Cluster {
         significance,
         radius: radius_squared.sqrt(),
@@ -200,7 +200,11 @@ mod tests {
         let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(seed);
         let normal = rand_distr::Normal::new(0.0, sigma).unwrap();
         (0..n)
-            .map(|_| (0..3).map(|_| rand_distr::Distribution::sample(&normal, &mut rng).powi(2)).sum())
+            .map(|_| {
+                (0..3)
+                    .map(|_| rand_distr::Distribution::sample(&normal, &mut rng).powi(2))
+                    .sum()
+            })
             .collect()
     }
 
