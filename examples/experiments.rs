@@ -696,7 +696,7 @@ fn run_scan(
         iterations: result.iterations,
         seconds: began.elapsed().as_secs_f64(),
         sigma: result.sigma.first().copied().unwrap_or(f64::NAN),
-        quality: result.quality.clone(),
+        quality: result.quality,
     }
 }
 
