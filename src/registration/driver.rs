@@ -11,7 +11,7 @@ use super::{
 };
 use crate::cost::{CostFunction, baseline_weights};
 use crate::geometry::transform_change;
-use crate::sie::schedule::{BetaSchedule, Convergence, PrecisionStop, Schedule, row_norm};
+use crate::sie::schedule::{BetaSchedule, Convergence, PrecisionStop, Schedule};
 
 /// How correspondences are weighted.
 enum Weighting {
@@ -135,6 +135,36 @@ impl Weighting {
             },
         }
     }
+}
+
+/// sqrt(Σ w_i‖r_i‖² / Σ w_i) over the rows of weight > 0, scaled by the largest norm so that
+/// residuals whose squares overflow (coordinates near 1e160) still give a finite answer; rows
+/// whose norm is not finite are left out (a garbage point far out). 0 without weight.
+fn weighted_rms(residual: &[f64], cols: usize, weights: &[f64]) -> f64 {
+    let norm = |i: usize| {
+        let row = &residual[i * cols..(i + 1) * cols];
+        let largest = row.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if largest > 0.0 && largest.is_finite() {
+            largest * row.iter().map(|v| (v / largest).powi(2)).sum::<f64>().sqrt()
+        } else {
+            largest
+        }
+    };
+    let counted = || {
+        weights
+            .iter()
+            .enumerate()
+            .filter(|(_, w)| **w > 0.0)
+            .map(move |(i, &w)| (w, norm(i)))
+            .filter(|(_, n)| n.is_finite())
+    };
+    let largest = counted().fold(0.0f64, |m, (_, n)| m.max(n));
+    let weight_sum: f64 = counted().map(|(w, _)| w).sum();
+    if largest == 0.0 || weight_sum <= 0.0 {
+        return 0.0;
+    }
+    let scaled: f64 = counted().map(|(w, n)| w * (n / largest).powi(2)).sum();
+    largest * (scaled / weight_sum).sqrt()
 }
 
 /// See `travelling` in [`run`].
@@ -309,17 +339,14 @@ pub(crate) fn run(
     weighting.final_probabilities(rows, cols, &mut work);
     let mut probabilities = vec![0.0; source_count];
     let mut correspondences = vec![-1i64; source_count];
-    let (mut weight_sum, mut weighted_square) = (0.0, 0.0);
+    let mut weight_sum = 0.0;
     for (i, &p) in work.probabilities.iter().enumerate() {
         let s = rows.source[i] as usize;
         probabilities[s] = p;
         correspondences[s] = rows.target[i] as i64;
         weight_sum += p;
-        if p > 0.0 {
-            // A zero-probability garbage row may not square finitely.
-            weighted_square += p * row_norm(&rows.residual, cols, i).powi(2);
-        }
     }
+    let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
     let ModelSummary {
         sigma,
         beta,
@@ -340,11 +367,7 @@ pub(crate) fn run(
         penalty,
         noise_shape,
         inlier_fraction: weight_sum / source_count as f64,
-        rmse: if weight_sum > 0.0 {
-            (weighted_square / weight_sum).sqrt()
-        } else {
-            0.0
-        },
+        rmse,
         probabilities,
         correspondences,
         histograms,
@@ -393,10 +416,7 @@ fn trace_entry(
             }
         }
     };
-    let weight_sum: f64 = work.weights.iter().sum();
-    let weighted_square: f64 = (0..n)
-        .map(|i| work.weights[i] * row_norm(&rows.residual, cols, i).powi(2))
-        .sum();
+    let rmse = weighted_rms(&rows.residual, cols, &work.weights[..n]);
     TraceEntry {
         iteration,
         annealing: weighting.annealing(),
@@ -404,11 +424,7 @@ fn trace_entry(
         beta: model.beta.first().copied().unwrap_or(0.0),
         penalty: model.penalty,
         inlier_fraction,
-        rmse: if weight_sum > 0.0 {
-            (weighted_square / weight_sum).sqrt()
-        } else {
-            0.0
-        },
+        rmse,
         translation_change,
         rotation_change,
         correspondences: n,
