@@ -19,14 +19,13 @@
 //! assert!(error < 0.01, "{error}");
 //! # Ok::<(), sie::Error>(())
 //! ```
-// Raw pointers and `unsafe` live in `ffi` only; the compiler keeps it so, and every unsafe
-// block there states why it is sound.
+// Raw pointers live in `ffi` only (its own `allow` lifts this there); the compiler keeps it so,
+// and every block there states why it is sound.
 #![deny(unsafe_code)]
 #![warn(clippy::undocumented_unsafe_blocks)]
 
 pub mod cost;
 pub mod error;
-#[allow(unsafe_code)]
 pub mod ffi;
 pub mod geometry;
 #[cfg(feature = "io")]
