@@ -117,6 +117,7 @@ enum class StartKind : std::uint32_t {
     NarrowBeta = SIE_START_KIND_NARROW_BETA,
     ScaleFreeLead = SIE_START_KIND_SCALE_FREE_LEAD,
     Hypothesis = SIE_START_KIND_HYPOTHESIS,
+    WarmStart = SIE_START_KIND_WARM_START,
 };
 
 enum class StopReason : std::uint32_t {
@@ -177,6 +178,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "scale-free lead";
     case StartKind::Hypothesis:
         return "hypothesis";
+    case StartKind::WarmStart:
+        return "warm start";
     }
     return "unknown";
 }
@@ -399,6 +402,29 @@ class Context {
      * significant result. */
     Context &set_starts(Starts starts) {
         check(sie_context_set_starts(get(), static_cast<std::uint32_t>(starts)));
+        return *this;
+    }
+
+    /** Starts the following registrations from the noise model of `previous` (an earlier SIE
+     * registration's summary): for sequences registered from good guesses; falls back to the
+     * full search by itself when the guess was bad (sie_context_set_warm_start). */
+    Context &set_warm_start(const Summary &previous) {
+        sie_summary raw{};
+        for (std::size_t i = 0; i < 3; ++i) {
+            raw.sigma[i] = previous.sigma[i];
+            raw.beta[i] = previous.beta[i];
+        }
+        raw.penalty = previous.penalty;
+        raw.noise_shape = previous.noise_shape;
+        raw.inlier_fraction = previous.inlier_fraction;
+        raw.histogram_count = previous.histogram_count;
+        check(sie_context_set_warm_start(get(), &raw));
+        return *this;
+    }
+
+    /** Registrations start cold again (the default). */
+    Context &clear_warm_start() {
+        check(sie_context_set_warm_start(get(), nullptr));
         return *this;
     }
     /** Caps the updates of each start (Summary::iterations counts those of all starts). */

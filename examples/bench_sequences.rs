@@ -24,7 +24,7 @@ use std::time::Instant;
 use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
 use sie::synthetic::room_trajectory;
-use sie::{Hooks, Point, PrepareOptions, PreparedTarget, RegistrationConfig, register_clouds_to};
+use sie::{Hooks, Point, PrepareOptions, PreparedTarget, RegistrationConfig, WarmStart, register_clouds_to};
 
 /// The map gets a keyframe every this many frames; its prepared target serves the frames between.
 const KEYFRAME_INTERVAL: usize = 5;
@@ -35,7 +35,7 @@ const DEPTH_STRIDE: usize = 4;
 
 pub const HEADER: &str = "library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,rpe_r_rmse_deg,rpe_t_max_mm,note";
 
-struct Sequence {
+pub struct Sequence {
     name: String,
     frames: Vec<Vec<Point>>,
     poses: Vec<Matrix4<f64>>,
@@ -60,7 +60,9 @@ fn main() -> Result<(), String> {
             for sequence in read_sequences(&dir)? {
                 for &t in &threads {
                     for mode in [Mode::PreviousFrame, Mode::Map] {
-                        println!("{}", run(&sequence, mode, t)?.csv());
+                        for start in [Start::Cold, Start::Warm] {
+                            println!("{}", run(&sequence, mode, t, start)?.csv());
+                        }
                     }
                 }
             }
@@ -72,8 +74,8 @@ fn main() -> Result<(), String> {
             println!("{HEADER}");
             let result = (|| {
                 for sequence in read_sequences(&dir)? {
-                    for mode in [Mode::PreviousFrame, Mode::Map] {
-                        let row = run(&sequence, mode, 1)?;
+                    for (mode, start) in [(Mode::PreviousFrame, Start::Cold), (Mode::Map, Start::Warm)] {
+                        let row = run(&sequence, mode, 1, start)?;
                         println!("{}", row.csv());
                         // A sanity bound, not a benchmark: odometry on clean synthetic frames.
                         if !(row.rpe_t_rmse_mm < 50.0 && row.rpe_r_rmse_deg < 1.0) {
@@ -97,7 +99,7 @@ fn parse_list(text: &str) -> Result<Vec<usize>, String> {
 }
 
 #[derive(Clone, Copy, PartialEq)]
-enum Mode {
+pub enum Mode {
     /// Frame i onto frame i − 1 (prepared once, as the next frame's target).
     PreviousFrame,
     /// Frame i onto a voxel map of keyframes in the world frame.
@@ -113,25 +115,39 @@ impl Mode {
     }
 }
 
-struct Row {
+/// Whether each registration starts from the previous one's noise model.
+#[derive(Clone, Copy, PartialEq)]
+pub enum Start {
+    /// Every frame registered as a single pair (the library's defaults).
+    Cold,
+    /// `RegistrationConfig::warm_start` from the previous frame's result.
+    Warm,
+}
+
+pub struct Row {
     sequence: String,
+    start: Start,
     points: usize,
     frames: usize,
     threads: usize,
     mode: Mode,
     seconds: f64,
-    rpe_t_rmse_mm: f64,
-    rpe_r_rmse_deg: f64,
-    rpe_t_max_mm: f64,
-    note: String,
+    pub rpe_t_rmse_mm: f64,
+    pub rpe_r_rmse_deg: f64,
+    pub rpe_t_max_mm: f64,
+    pub note: String,
 }
 
 impl Row {
-    fn csv(&self) -> String {
+    pub fn csv(&self) -> String {
         // Frames registered: all but the first.
         let registered = self.frames.saturating_sub(1) as f64;
         format!(
-            "sie,SIE point-to-plane,{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{}",
+            "sie,SIE point-to-plane{},{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{}",
+            match self.start {
+                Start::Cold => "",
+                Start::Warm => " warm start",
+            },
             self.sequence,
             self.points,
             self.frames,
@@ -148,8 +164,8 @@ impl Row {
 }
 
 /// Runs odometry over the sequence from the true first pose with a constant-velocity guess.
-fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
-    let config = RegistrationConfig {
+pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Result<Row, String> {
+    let mut config = RegistrationConfig {
         threads,
         ..RegistrationConfig::default()
     };
@@ -158,6 +174,7 @@ fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
     let mut estimates = vec![sequence.poses[0]];
     let mut velocity = Matrix4::identity(); // last frame-to-frame motion
     let mut iterations = 0u64;
+    let mut starts = 0u64;
     let started = Instant::now();
     let mut map = VoxelMap::new(sequence.voxel);
     let mut target = match mode {
@@ -176,6 +193,10 @@ fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
                     register_clouds_to(&frames[i], &target, Some(&velocity), &config, Hooks::default())
                         .map_err(|e| format!("frame {i}: {e}"))?;
                 iterations += u64::from(result.iterations);
+                starts += u64::from(result.search.starts_run);
+                if start == Start::Warm {
+                    config.warm_start = WarmStart::of(&result);
+                }
                 target = PreparedTarget::new(&frames[i], None, &options).map_err(|e| e.to_string())?;
                 previous * result.transform
             }
@@ -184,6 +205,10 @@ fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
                 let result = register_clouds_to(&frames[i], &target, Some(&guess), &config, Hooks::default())
                     .map_err(|e| format!("frame {i}: {e}"))?;
                 iterations += u64::from(result.iterations);
+                starts += u64::from(result.search.starts_run);
+                if start == Start::Warm {
+                    config.warm_start = WarmStart::of(&result);
+                }
                 if i % KEYFRAME_INTERVAL == 0 {
                     map.insert(&frames[i], &result.transform);
                     target = PreparedTarget::new(&map.points, None, &options).map_err(|e| e.to_string())?;
@@ -197,7 +222,11 @@ fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
     let seconds = started.elapsed().as_secs_f64();
     let (rpe_t_rmse_mm, rpe_r_rmse_deg, rpe_t_max_mm) = relative_pose_errors(&sequence.poses, &estimates);
     let registered = frames.len().saturating_sub(1).max(1) as u64;
-    let mut note = format!("{:.1} iterations/frame", iterations as f64 / registered as f64);
+    let mut note = format!(
+        "{:.1} iterations/frame; {:.2} starts/frame",
+        iterations as f64 / registered as f64,
+        starts as f64 / registered as f64
+    );
     if mode == Mode::Map {
         note += &format!(
             "; map {} points at {} m voxels; keyframe every {KEYFRAME_INTERVAL}",
@@ -207,6 +236,7 @@ fn run(sequence: &Sequence, mode: Mode, threads: usize) -> Result<Row, String> {
     }
     Ok(Row {
         sequence: sequence.name.clone(),
+        start,
         points: frames.iter().map(Vec::len).sum::<usize>() / frames.len(),
         frames: frames.len(),
         threads,
@@ -399,7 +429,7 @@ fn read_sequence(folder: &Path) -> Result<Sequence, String> {
 
 /// The slambook Kinect frames 2..5 (every `DEPTH_STRIDE`-th pixel) with their poses; see the
 /// data README and examples/experiments/scans.rs.
-fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
+pub fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
     // Intrinsics and depth scale from the data README (joinMap.cpp).
     const FX: f64 = 518.0;
     const FY: f64 = 519.0;

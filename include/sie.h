@@ -377,6 +377,10 @@ enum sie_start_kind
      * A pose found by the hypothesis search (correspondences).
      */
     SIE_START_KIND_HYPOTHESIS = 3,
+    /**
+     * The initial guess with the warm start's noise model (`sie_context_set_warm_start`).
+     */
+    SIE_START_KIND_WARM_START = 4,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -433,85 +437,6 @@ typedef struct sie_context sie_context;
  * registration using it has returned.
  */
 typedef struct sie_target sie_target;
-
-/**
- * Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
- * point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
- * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
- *
- * Called once per cloud per registration (never per point), synchronously on the thread that
- * called the registration function. Return 0 on success; any other value aborts the
- * registration with `SIE_STATUS_CALLBACK_FAILED` and the value in the message. It must not
- * unwind or throw, and must not free the context; other calls on the same context from inside
- * it return `SIE_STATUS_BUSY`. The pointers are valid only during the call.
- *
- * Never leave it with `longjmp` (or a C++ exception through C frames): that skips the
- * library's cleanup, so the context stays in use for good (every later call on it returns
- * BUSY, `sie_context_free` ignores it and it leaks) along with the registration's memory.
- * Return non-zero instead, and longjmp after the registration has returned.
- */
-typedef int32_t (*sie_noise_fn)(void *user_data,
-                                uint32_t cloud,
-                                const double *xyz,
-                                size_t n,
-                                double *out_sigma);
-
-/**
- * One iteration of the last registration (`sie_context_get_trace`; recorded only when
- * `sie_context_set_trace(ctx, true)` was set).
- */
-typedef struct sie_trace_entry {
-    /**
-     * sigma of the first histogram; the scale of baseline costs.
-     */
-    double sigma;
-    double beta;
-    double penalty;
-    /**
-     * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
-     * 0), over the source points this iteration matched, with this update's weights.
-     */
-    double inlier_fraction;
-    /**
-     * Weighted RMS residual (input units).
-     */
-    double rmse;
-    /**
-     * Size of this update: translation (input units) and rotation (radians).
-     */
-    double translation_change;
-    double rotation_change;
-    uint64_t correspondences;
-    /**
-     * 1-based update count.
-     */
-    uint32_t iteration;
-    /**
-     * True while beta is being annealed, false in the final round.
-     */
-    bool annealing;
-    /**
-     * T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
-     * viewer can move the source cloud with it every iteration.
-     */
-    double transform[16];
-} sie_trace_entry;
-
-/**
- * Progress callback: called after every iteration of a registration with that iteration's
- * trace entry (valid only during the call; `entry->transform` is the transform the update
- * reached, for a viewer that animates the registration), synchronously on the registering
- * thread. Return 0
- * to continue; any other value cancels the registration, which then returns
- * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
- * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
- * (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
- *
- * With SIE_STARTS_AUTOMATIC it sees the updates of every start in order (`iteration` numbers
- * them on); the returned transform is the last update of the start that won, which need not
- * be the last one seen.
- */
-typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
 
 /**
  * Summary of the last successful registration (`sie_context_get_summary`).
@@ -625,6 +550,85 @@ typedef struct sie_summary {
      */
     uint32_t agreeing_starts;
 } sie_summary;
+
+/**
+ * Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
+ * point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
+ * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
+ *
+ * Called once per cloud per registration (never per point), synchronously on the thread that
+ * called the registration function. Return 0 on success; any other value aborts the
+ * registration with `SIE_STATUS_CALLBACK_FAILED` and the value in the message. It must not
+ * unwind or throw, and must not free the context; other calls on the same context from inside
+ * it return `SIE_STATUS_BUSY`. The pointers are valid only during the call.
+ *
+ * Never leave it with `longjmp` (or a C++ exception through C frames): that skips the
+ * library's cleanup, so the context stays in use for good (every later call on it returns
+ * BUSY, `sie_context_free` ignores it and it leaks) along with the registration's memory.
+ * Return non-zero instead, and longjmp after the registration has returned.
+ */
+typedef int32_t (*sie_noise_fn)(void *user_data,
+                                uint32_t cloud,
+                                const double *xyz,
+                                size_t n,
+                                double *out_sigma);
+
+/**
+ * One iteration of the last registration (`sie_context_get_trace`; recorded only when
+ * `sie_context_set_trace(ctx, true)` was set).
+ */
+typedef struct sie_trace_entry {
+    /**
+     * sigma of the first histogram; the scale of baseline costs.
+     */
+    double sigma;
+    double beta;
+    double penalty;
+    /**
+     * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
+     * 0), over the source points this iteration matched, with this update's weights.
+     */
+    double inlier_fraction;
+    /**
+     * Weighted RMS residual (input units).
+     */
+    double rmse;
+    /**
+     * Size of this update: translation (input units) and rotation (radians).
+     */
+    double translation_change;
+    double rotation_change;
+    uint64_t correspondences;
+    /**
+     * 1-based update count.
+     */
+    uint32_t iteration;
+    /**
+     * True while beta is being annealed, false in the final round.
+     */
+    bool annealing;
+    /**
+     * T_target_source reached by this update, 16 doubles ROW-major (T[4*row + col]): a
+     * viewer can move the source cloud with it every iteration.
+     */
+    double transform[16];
+} sie_trace_entry;
+
+/**
+ * Progress callback: called after every iteration of a registration with that iteration's
+ * trace entry (valid only during the call; `entry->transform` is the transform the update
+ * reached, for a viewer that animates the registration), synchronously on the registering
+ * thread. Return 0
+ * to continue; any other value cancels the registration, which then returns
+ * `SIE_STATUS_CANCELLED` with the transform reached so far. It must not unwind or throw; calls
+ * on the same context from inside it return `SIE_STATUS_BUSY`. Never leave it with `longjmp`
+ * (see `sie_noise_fn`: the context would stay BUSY for good); return non-zero to stop.
+ *
+ * With SIE_STARTS_AUTOMATIC it sees the updates of every start in order (`iteration` numbers
+ * them on); the returned transform is the last update of the start that won, which need not
+ * be the last one seen.
+ */
+typedef int32_t (*sie_progress_fn)(void *user_data, const struct sie_trace_entry *entry);
 
 /**
  * One fitted SIE histogram model (`sie_context_get_histogram`, `sie_estimate_inliers`).
@@ -778,6 +782,24 @@ sie_status sie_context_set_metric(struct sie_context *ctx, uint32_t metric);
  * `ctx` is NULL or a live context.
  */
 sie_status sie_context_set_starts(struct sie_context *ctx, uint32_t starts);
+
+/**
+ * Starts the following registrations from the noise model of `previous`, the summary of an
+ * earlier SIE registration (`sie_context_get_summary`), or clears it (NULL). For sequences
+ * registered from good guesses (odometry with a constant-velocity guess, scan-to-map): one
+ * run from the initial guess with beta0 = 2 sigma and no annealing far below sigma, about a
+ * third of the updates of a cold start. When that run shows the guess was bad (it did not
+ * converge, sigma more than doubled, the inlier fraction halved, or it travelled farther than
+ * the model could see), the registration runs as without a warm start, by itself
+ * (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). The values
+ * are copied; the setting stays until changed (call it after every frame). Ignored by
+ * baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:
+ * a baseline's summary) or values out of range.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `previous` is NULL or valid for reading one `sie_summary`.
+ */
+sie_status sie_context_set_warm_start(struct sie_context *ctx, const struct sie_summary *previous);
 
 /**
  * Caps the number of updates of each start (>= 1; with SIE_STARTS_AUTOMATIC several starts

@@ -44,6 +44,7 @@ pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use registration::{
     Error, Hooks, InlierEstimate, MIN_ESTIMATE_ROWS, Metric, Observer, Point, PrepareOptions, PreparedTarget,
     Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, Starts, StopReason,
-    TraceEntry, Verdict, estimate_inliers, register_clouds, register_clouds_to, register_correspondences,
+    TraceEntry, Verdict, WarmStart, estimate_inliers, register_clouds, register_clouds_to,
+    register_correspondences,
 };
 pub use sie::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieEstimator, SieOptions};

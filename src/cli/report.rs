@@ -201,6 +201,7 @@ pub fn search_row(result: &RegistrationResult) -> SearchRow {
             StartKind::NarrowBeta => "narrow_beta",
             StartKind::ScaleFreeLead => "scale_free_lead",
             StartKind::Hypothesis => "hypothesis",
+            StartKind::WarmStart => "warm_start",
         },
         starts_run: search.starts_run,
         hypotheses: search.hypotheses,

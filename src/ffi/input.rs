@@ -6,9 +6,10 @@ use core::mem::{align_of, size_of};
 use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
-use super::sie_status;
+use super::{sie_status, sie_summary};
 use crate::geometry::{Point, Rigid};
 use crate::memory::try_vec;
+use crate::registration::WarmStart;
 
 /// The scalar types point arrays come in.
 pub(crate) trait Coordinate: Copy {
@@ -95,6 +96,41 @@ pub(crate) unsafe fn read_array<T: Copy>(ptr: *const T, len: usize, name: &str) 
     // SAFETY: non-NULL, aligned, within isize::MAX bytes, and readable per the contract.
     copy.extend_from_slice(unsafe { core::slice::from_raw_parts(ptr, len) });
     Ok(copy)
+}
+
+/// The noise model of a summary a registration filled (`sie_context_set_warm_start`). Reads
+/// only its number fields (a `bool` with another bit pattern would be undefined behaviour to
+/// copy).
+///
+/// # Safety
+/// `ptr` is valid for reading one `sie_summary` (NULL and misalignment are reported).
+pub(crate) unsafe fn read_warm_start(ptr: *const sie_summary, name: &str) -> Result<WarmStart, FfiError> {
+    check_non_null(ptr, name)?;
+    check_aligned(ptr, name)?;
+    // SAFETY: non-NULL, aligned and readable per the contract; each field is read by value
+    // through a raw place, f64 and u32 have no invalid bit patterns.
+    let (sigma, penalty, noise_shape, inlier_fraction, histogram_count) = unsafe {
+        (
+            core::ptr::addr_of!((*ptr).sigma).read(),
+            core::ptr::addr_of!((*ptr).penalty).read(),
+            core::ptr::addr_of!((*ptr).noise_shape).read(),
+            core::ptr::addr_of!((*ptr).inlier_fraction).read(),
+            core::ptr::addr_of!((*ptr).histogram_count).read(),
+        )
+    };
+    if !(1..=3).contains(&histogram_count) {
+        return Err(FfiError::invalid(format!(
+            "{name} holds no SIE noise model (histogram_count is {histogram_count}; a baseline cost's \
+             summary, or not one a registration filled)"
+        )));
+    }
+    WarmStart::from_fit(
+        &sigma[..histogram_count as usize],
+        penalty,
+        noise_shape,
+        inlier_fraction,
+    )
+    .map_err(|message| FfiError::invalid(format!("{name}: {message}")))
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`

@@ -199,6 +199,8 @@ pub enum sie_start_kind {
     ScaleFreeLead = 2,
     /// A pose found by the hypothesis search (correspondences).
     Hypothesis = 3,
+    /// The initial guess with the warm start's noise model (`sie_context_set_warm_start`).
+    WarmStart = 4,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).

@@ -46,6 +46,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StartKind::NarrowBeta => sie_start_kind::NarrowBeta,
         StartKind::ScaleFreeLead => sie_start_kind::ScaleFreeLead,
         StartKind::Hypothesis => sie_start_kind::Hypothesis,
+        StartKind::WarmStart => sie_start_kind::WarmStart,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

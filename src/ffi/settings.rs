@@ -5,9 +5,10 @@ use core::ffi::c_void;
 
 use super::boundary::{FfiError, boundary};
 use super::callback::{NoiseCallback, ProgressCallback};
+use super::input::read_warm_start;
 use super::{
     CEnum, sie_context, sie_cost_function, sie_histogram_mode, sie_metric, sie_noise_fn, sie_noise_model,
-    sie_progress_fn, sie_starts, sie_status,
+    sie_progress_fn, sie_starts, sie_status, sie_summary,
 };
 use crate::cost::CostFunction;
 use crate::noise::NoiseModel;
@@ -105,6 +106,39 @@ pub unsafe extern "C" fn sie_context_set_starts(ctx: *mut sie_context, starts: u
             config.starts = match sie_starts::decode(starts, "starts")? {
                 sie_starts::Automatic => Starts::Automatic,
                 sie_starts::InitialGuess => Starts::InitialGuess,
+            };
+            Ok(())
+        })
+    }
+}
+
+/// Starts the following registrations from the noise model of `previous`, the summary of an
+/// earlier SIE registration (`sie_context_get_summary`), or clears it (NULL). For sequences
+/// registered from good guesses (odometry with a constant-velocity guess, scan-to-map): one
+/// run from the initial guess with beta0 = 2 sigma and no annealing far below sigma, about a
+/// third of the updates of a cold start. When that run shows the guess was bad (it did not
+/// converge, sigma more than doubled, the inlier fraction halved, or it travelled farther than
+/// the model could see), the registration runs as without a warm start, by itself
+/// (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). The values
+/// are copied; the setting stays until changed (call it after every frame). Ignored by
+/// baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:
+/// a baseline's summary) or values out of range.
+///
+/// # Safety
+/// `ctx` is NULL or a live context; `previous` is NULL or valid for reading one `sie_summary`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_set_warm_start(
+    ctx: *mut sie_context,
+    previous: *const sie_summary,
+) -> sie_status {
+    // SAFETY: forwarded contract.
+    unsafe {
+        update_config(ctx, |config| {
+            config.warm_start = if previous.is_null() {
+                None
+            } else {
+                // SAFETY: non-NULL, and readable per the contract.
+                Some(read_warm_start(previous, "previous")?)
             };
             Ok(())
         })

@@ -1387,3 +1387,99 @@ fn contexts_on_several_threads_share_one_prepared_target() {
     // SAFETY: created above, every user has returned.
     unsafe { sie_target_free(target) };
 }
+
+#[test]
+fn warm_start_is_read_from_a_summary_and_checked() {
+    let scene = crate::synthetic::room_scene(3_000, 0.01, 31);
+    let (source, target) = (packed(&scene.source), packed(&scene.target));
+    let ctx = Context::new();
+    let mut transform = [0.0; 16];
+    let mut summary = sie_summary::default();
+    // SAFETY: live context, packed arrays of 3000 points, outputs valid.
+    unsafe {
+        assert_eq!(sie_context_set_threads(ctx.0, 1), sie_status::Ok);
+        let register = |transform: &mut [f64; 16]| {
+            sie_context_register(
+                ctx.0,
+                source.as_ptr(),
+                3_000,
+                0,
+                target.as_ptr(),
+                3_000,
+                0,
+                null(),
+                transform.as_mut_ptr(),
+            )
+        };
+        assert_eq!(register(&mut transform), sie_status::Ok);
+        assert_eq!(sie_context_get_summary(ctx.0, &mut summary), sie_status::Ok);
+        assert_eq!(sie_context_set_warm_start(ctx.0, &summary), sie_status::Ok);
+        let warm = ctx.config().warm_start.expect("stored");
+        assert_eq!(warm.sigma, summary.sigma[0]);
+        assert_eq!(
+            (warm.penalty, warm.inlier_fraction),
+            (summary.penalty, summary.inlier_fraction)
+        );
+        // The same pair from its own answer: the warm run is kept.
+        let guess = transform;
+        assert_eq!(
+            sie_context_register(
+                ctx.0,
+                source.as_ptr(),
+                3_000,
+                0,
+                target.as_ptr(),
+                3_000,
+                0,
+                guess.as_ptr(),
+                transform.as_mut_ptr()
+            ),
+            sie_status::Ok
+        );
+        let mut warm_summary = sie_summary::default();
+        assert_eq!(sie_context_get_summary(ctx.0, &mut warm_summary), sie_status::Ok);
+        assert_eq!(warm_summary.start, sie_start_kind::WarmStart as u32);
+        assert_eq!(warm_summary.starts_run, 1);
+        assert!(warm_summary.iterations < summary.iterations);
+
+        // NULL clears it.
+        assert_eq!(sie_context_set_warm_start(ctx.0, null()), sie_status::Ok);
+        assert_eq!(ctx.config().warm_start, None);
+
+        // A baseline's summary, and out-of-range values, are refused and change nothing.
+        let before = ctx.config();
+        let baseline = sie_summary {
+            histogram_count: 0,
+            ..summary
+        };
+        assert_eq!(
+            sie_context_set_warm_start(ctx.0, &baseline),
+            sie_status::InvalidArgument
+        );
+        assert!(
+            ctx.last_error().contains("previous holds no SIE noise model"),
+            "{}",
+            ctx.last_error()
+        );
+        let negative = sie_summary {
+            sigma: [-1.0, 0.0, 0.0],
+            histogram_count: 1,
+            ..summary
+        };
+        assert_eq!(
+            sie_context_set_warm_start(ctx.0, &negative),
+            sie_status::InvalidArgument
+        );
+        assert!(ctx.last_error().contains("sigma"), "{}", ctx.last_error());
+        let misaligned = (&summary as *const sie_summary)
+            .cast::<u8>()
+            .wrapping_add(1)
+            .cast::<sie_summary>();
+        assert_eq!(
+            sie_context_set_warm_start(ctx.0, misaligned),
+            sie_status::InvalidArgument
+        );
+        assert!(ctx.last_error().contains("not aligned"), "{}", ctx.last_error());
+        assert_eq!(ctx.config(), before);
+    }
+}

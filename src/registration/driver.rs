@@ -48,6 +48,7 @@ impl Weighting {
                     initial: config.initial_beta,
                     shrink: config.beta_shrink,
                     stop_ratio: config.beta_stop_ratio,
+                    warm: config.warm_start.filter(|_| config.initial_beta.is_none()),
                 },
                 precision_stop,
             ))),

@@ -21,6 +21,7 @@ use crate::sie::{HistogramModel, SieOptions};
 
 pub use crate::error::Error;
 pub use crate::geometry::Point;
+pub use crate::sie::schedule::WarmStart;
 
 /// Residual used by ICP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -72,6 +73,9 @@ pub enum StartKind {
     ScaleFreeLead,
     /// A pose found by the hypothesis search (correspondences).
     Hypothesis,
+    /// The initial guess with the caller's warm start (`RegistrationConfig::warm_start`): the
+    /// previous fit's noise model, β₀ = 2σ.
+    WarmStart,
 }
 
 /// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
@@ -95,6 +99,12 @@ pub struct RegistrationConfig {
     pub noise: NoiseModel,
     /// β₀ in normalised units; `None` = RMS of the initial residuals (§4.3).
     pub initial_beta: Option<f64>,
+    /// SIE: start from a previous registration's noise model (`WarmStart::of`), for a
+    /// sequence registered from good guesses. One run from the initial guess with β₀ = 2σ and
+    /// no levels far below σ; when it ends without the model holding (not converged, no inlier
+    /// peak, σ more than doubled or the inlier fraction halved: the guess was bad), the
+    /// registration runs as without it (`starts`). Ignored when `initial_beta` is set.
+    pub warm_start: Option<WarmStart>,
     /// β ← shrink·β after each convergence (§4.3: 0.5).
     pub beta_shrink: f64,
     /// Annealing ends when β < ratio·σ ("β ≪ σ").
@@ -132,6 +142,7 @@ impl Default for RegistrationConfig {
             rotation_tolerance: 1e-6,
             noise: NoiseModel::Constant,
             initial_beta: None,
+            warm_start: None,
             beta_shrink: 0.5,
             beta_stop_ratio: 0.01,
             max_correspondences: 0,
@@ -166,6 +177,9 @@ impl RegistrationConfig {
             if !(b.is_finite() && b >= 0.0) {
                 return bad(format!("initial_beta must be finite and >= 0, got {b}"));
             }
+        }
+        if let Some(warm) = &self.warm_start {
+            warm.validate().or_else(bad)?;
         }
         if !(self.beta_shrink > 0.0 && self.beta_shrink < 1.0) {
             return bad(format!("beta_shrink must be in (0, 1), got {}", self.beta_shrink));

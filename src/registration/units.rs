@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix4, Vector3};
 
-use super::{RegistrationResult, TraceEntry};
+use super::{RegistrationConfig, RegistrationResult, TraceEntry, WarmStart};
 use crate::geometry::{Point, from_parts, rotation_part, translation_part};
 
 /// Coordinates, and noise scales, whose magnitudes lie in [1/SAFE, SAFE] are used as given:
@@ -116,6 +116,18 @@ impl Units {
         let r = rotation_part(t);
         let translation = translation_part(t) * self.length + self.centre - r * self.centre;
         from_parts(&r, &translation)
+    }
+
+    /// A config in these units (the warm start's σ is a residual).
+    pub(crate) fn config_in(&self, config: &RegistrationConfig) -> RegistrationConfig {
+        let residual = self.length * self.noise;
+        RegistrationConfig {
+            warm_start: config.warm_start.map(|warm| WarmStart {
+                sigma: warm.sigma / residual,
+                ..warm
+            }),
+            ..config.clone()
+        }
     }
 
     /// A trace entry in the caller's units.

@@ -258,6 +258,19 @@ impl SieEstimator {
         }
     }
 
+    /// Sets every histogram's model to σ, k and (when the shape is estimated) p: a warm start
+    /// from an earlier fit. `prepare` must have created the models.
+    pub fn set_model(&mut self, sigma: f64, penalty: f64, shape: f64) {
+        let estimated = self.options.shape == NoiseShape::Estimated;
+        for m in &mut self.models {
+            m.shape.sigma = sigma;
+            m.penalty = penalty;
+            if estimated {
+                m.shape.p = shape;
+            }
+        }
+    }
+
     /// β_j ← factor·β_j (§4.3: halve after each convergence).
     pub fn shrink_beta(&mut self, factor: f64) {
         for m in &mut self.models {

@@ -23,6 +23,97 @@ const PRECISION_FRACTION: f64 = 0.1;
 /// Degrees of freedom of a rigid transform.
 const RIGID_DOF: f64 = 6.0;
 
+/// A previous registration's fitted noise model, to start the next similar one from: a
+/// sequence's next frame, registered from a good guess (a constant-velocity prediction). σ in
+/// the units `RegistrationResult::sigma` reports.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WarmStart {
+    /// Fitted σ (`RegistrationResult::sigma`, the RMS over histograms when there are several).
+    pub sigma: f64,
+    /// Adapted k (`RegistrationResult::penalty`).
+    pub penalty: f64,
+    /// Noise shape p (`RegistrationResult::noise_shape`; used when the shape is estimated).
+    pub noise_shape: f64,
+    /// Inlier fraction (`RegistrationResult::inlier_fraction`): a warm run that ends with far
+    /// fewer inliers has left the previous frame's basin, and the full schedule runs instead.
+    pub inlier_fraction: f64,
+}
+
+impl WarmStart {
+    /// The noise model a registration ended with, to start the next one from (`None` for a
+    /// baseline cost or a result without a usable σ).
+    pub fn of(result: &crate::registration::RegistrationResult) -> Option<WarmStart> {
+        if result.beta.is_empty() {
+            return None;
+        }
+        Self::from_fit(
+            &result.sigma,
+            result.penalty,
+            result.noise_shape,
+            result.inlier_fraction,
+        )
+        .ok()
+    }
+
+    /// A noise model from its numbers (σ per histogram, each finite and > 0); the message
+    /// names the first bad value.
+    pub fn from_fit(
+        sigma: &[f64],
+        penalty: f64,
+        noise_shape: f64,
+        inlier_fraction: f64,
+    ) -> Result<WarmStart, String> {
+        if let Some(bad) = sigma.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
+            return Err(format!("warm start sigma must be finite and > 0, got {bad}"));
+        }
+        let warm = WarmStart {
+            sigma: (sigma.iter().map(|s| s * s).sum::<f64>() / sigma.len().max(1) as f64).sqrt(),
+            penalty,
+            noise_shape,
+            inlier_fraction,
+        };
+        warm.validate().map(|()| warm)
+    }
+
+    /// Checks the values; the message names the first bad one.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.sigma.is_finite() && self.sigma > 0.0) {
+            return Err(format!(
+                "warm start sigma must be finite and > 0, got {}",
+                self.sigma
+            ));
+        }
+        if !(self.penalty.is_finite() && self.penalty >= 1.0) {
+            return Err(format!(
+                "warm start penalty must be finite and >= 1, got {}",
+                self.penalty
+            ));
+        }
+        if !(self.noise_shape.is_finite() && self.noise_shape > 0.0) {
+            return Err(format!(
+                "warm start noise_shape must be finite and > 0, got {}",
+                self.noise_shape
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.inlier_fraction) {
+            return Err(format!(
+                "warm start inlier_fraction must be in [0, 1], got {}",
+                self.inlier_fraction
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A warm start's β₀, in σ of the previous fit: one level above the noise, wide enough for a
+/// guess a few σ off (a constant-velocity prediction) without the levels that search the
+/// initial residuals' whole spread.
+pub const WARM_BETA_WIDTHS: f64 = 2.0;
+/// A warm start's annealing ends once β falls below this fraction of σ: the model's k and
+/// shape are already the data's (§4.5 adapts them after annealing only because a cold start
+/// cannot know them), so the levels far below σ that a cold start needs change nothing.
+const WARM_FINAL_RATIO: f64 = 0.5;
+
 /// How β starts and shrinks (§4.3).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BetaSchedule {
@@ -33,6 +124,9 @@ pub struct BetaSchedule {
     pub shrink: f64,
     /// Annealing ends when β_j < stop_ratio·σ_j for every histogram ("until β ≪ σ").
     pub stop_ratio: f64,
+    /// Start from this noise model with β₀ = WARM_BETA_WIDTHS·σ (overrides `initial`), and
+    /// end annealing at β < σ/2 with β set to 0 for the final round.
+    pub warm: Option<WarmStart>,
 }
 
 /// Where the schedule stands.
@@ -127,9 +221,13 @@ impl Schedule {
         if !self.started {
             self.started = true;
             estimator.prepare(normalised, cols);
-            let beta = match self.beta.initial {
-                Some(b) => vec![b],
-                None => estimator.residual_rms(normalised, cols),
+            let beta = match (self.beta.warm, self.beta.initial) {
+                (Some(warm), _) => {
+                    estimator.set_model(warm.sigma, warm.penalty, warm.noise_shape);
+                    vec![WARM_BETA_WIDTHS * warm.sigma]
+                }
+                (None, Some(b)) => vec![b],
+                (None, None) => estimator.residual_rms(normalised, cols),
             };
             estimator.set_beta(&beta);
         }
@@ -201,8 +299,15 @@ impl Schedule {
                 self.level_updates += 1;
                 if settled || self.level_updates >= MAX_LEVEL_UPDATES {
                     self.level_updates = 0;
-                    if self.estimator.beta_negligible(self.beta.stop_ratio) {
+                    let stop_ratio = match self.beta.warm {
+                        Some(_) => WARM_FINAL_RATIO,
+                        None => self.beta.stop_ratio,
+                    };
+                    if self.estimator.beta_negligible(stop_ratio) {
                         self.phase = Phase::Final;
+                        if self.beta.warm.is_some() {
+                            self.estimator.set_beta(&[0.0]);
+                        }
                     } else {
                         self.estimator.shrink_beta(self.beta.shrink);
                     }

@@ -145,6 +145,7 @@ class StartKind(_NamedEnum):
     NARROW_BETA = 1
     SCALE_FREE_LEAD = 2
     HYPOTHESIS = 3
+    WARM_START = 4
 
 
 class Cloud(_NamedEnum):
@@ -548,6 +549,24 @@ class Context:
         """Starts.AUTOMATIC (the default) runs SIE from several starts and keeps the most
         significant result; Starts.INITIAL_GUESS runs once from the initial guess."""
         self._check(_lib.sie_context_set_starts(self._handle, int(starts)))
+        return self
+
+    def set_warm_start(self, previous: Optional[Summary]) -> "Context":
+        """Starts the following registrations from the noise model of `previous`, an earlier SIE
+        registration's Summary (None: start cold again). For sequences registered from good
+        guesses; falls back to the full search by itself when the guess was bad
+        (Summary.start is StartKind.WARM_START when the warm run was kept)."""
+        if previous is None:
+            self._check(_lib.sie_context_set_warm_start(self._handle, None))
+            return self
+        raw = _native.sie_summary()
+        raw.sigma[:] = list(previous.sigma)
+        raw.beta[:] = list(previous.beta)
+        raw.penalty = previous.penalty
+        raw.noise_shape = previous.noise_shape
+        raw.inlier_fraction = previous.inlier_fraction
+        raw.histogram_count = previous.histogram_count
+        self._check(_lib.sie_context_set_warm_start(self._handle, ctypes.byref(raw)))
         return self
 
     def set_max_iterations(self, max_iterations: int) -> "Context":

@@ -107,6 +107,7 @@ _SIGNATURES = {
     "sie_context_set_cost_function": (status_t, [_ctx, ctypes.c_uint32, ctypes.c_double]),
     "sie_context_set_metric": (status_t, [_ctx, ctypes.c_uint32]),
     "sie_context_set_starts": (status_t, [_ctx, ctypes.c_uint32]),
+    "sie_context_set_warm_start": (status_t, [_ctx, ctypes.POINTER(sie_summary)]),
     "sie_context_set_max_iterations": (status_t, [_ctx, ctypes.c_uint32]),
     "sie_context_set_convergence": (status_t, [_ctx, ctypes.c_double, ctypes.c_double]),
     "sie_context_set_noise_model": (status_t, [_ctx, ctypes.c_uint32]),

@@ -679,3 +679,23 @@ def test_type_hints_serve_a_strict_mypy_user(tmp_path):
     bad.write_text("import sie\n\nsigma: str = sie.Context().summary().sigma\n")
     out, err, status = mypy.run(["--strict", *cache, str(bad)])
     assert status == 1 and "Incompatible types" in out, out + err
+
+
+def test_warm_start_from_a_previous_summary(clouds):
+    source, target, _ = clouds
+    ctx = sie.Context().set_threads(1)
+    cold = ctx.align(source, target)
+    assert cold.summary.start is not sie.StartKind.WARM_START
+    ctx.set_warm_start(cold.summary)
+    warm = ctx.align(source, target, cold.transform)
+    assert warm.summary.start is sie.StartKind.WARM_START and warm.summary.starts_run == 1
+    assert warm.summary.iterations < cold.summary.iterations
+    rotation, translation = pose_error(warm.transform, TRUTH)
+    assert rotation < 0.2 and translation < 0.004
+    ctx.set_warm_start(None)
+    assert ctx.align(source, target, cold.transform).summary.start is not sie.StartKind.WARM_START
+    # A baseline's summary has no SIE model to start from.
+    baseline = sie.Context().set_cost_function(sie.CostFunction.L2).align(source, target).summary
+    with pytest.raises(sie.SieError) as error:
+        ctx.set_warm_start(baseline)
+    assert error.value.status is sie.Status.INVALID_ARGUMENT and "no SIE noise model" in error.value.message
