@@ -27,6 +27,7 @@ static_assert(std::is_nothrow_move_assignable<sie::Context>::value, "moves must 
 static_assert(sizeof(sie::Status) == sizeof(sie_status), "same representation as the C enum");
 static_assert(static_cast<std::uint32_t>(sie::Verdict::Unsupported) == SIE_VERDICT_UNSUPPORTED, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::StartKind::Hypothesis) == SIE_START_KIND_HYPOTHESIS, "the C values");
+static_assert(static_cast<std::uint32_t>(sie::StartKind::WarmStart) == SIE_START_KIND_WARM_START, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::Starts::InitialGuess) == SIE_STARTS_INITIAL_GUESS, "the C values");
 
 namespace {
@@ -451,6 +452,19 @@ void test_starts_and_verdicts(const Clouds &clouds) {
     CHECK(context.summary().starts_run == 3);
     CHECK(context.summary().iterations > 4 && context.summary().iterations <= 16);
     CHECK(context.trace().size() == context.summary().iterations);
+
+    // A warm start from the previous summary, from the answer itself: one short run, kept.
+    context.set_max_iterations(200);
+    const sie::Transform cold = context.align(clouds.source, clouds.target);
+    const sie::Summary cold_summary = context.summary();
+    context.set_warm_start(cold_summary);
+    CHECK(close_to(context.align(clouds.source, clouds.target, cold), clouds.truth, 0.2, 0.004));
+    CHECK(context.summary().start == sie::StartKind::WarmStart && context.summary().starts_run == 1);
+    CHECK(context.summary().iterations < cold_summary.iterations);
+    CHECK(std::string(sie::to_string(sie::StartKind::WarmStart)) == "warm start");
+    context.clear_warm_start();
+    context.align(clouds.source, clouds.target, cold);
+    CHECK(context.summary().start != sie::StartKind::WarmStart);
 
     // Pairs with no relation at all: nothing stands out from chance.
     scene::Random random(21);
