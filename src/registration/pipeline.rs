@@ -401,7 +401,7 @@ fn verdict(result: &RegistrationResult) -> Verdict {
     let peak = result
         .histograms
         .iter()
-        .all(|h| h.peak_found || h.shape.sigma == 0.0);
+        .all(|h| h.peak_found || h.inlier.sigma == 0.0);
     let good = peak
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
