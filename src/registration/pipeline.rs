@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::driver::run;
 use super::input::{Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points};
-use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
+use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows, RunKind};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::units::Units;
 use super::{
@@ -702,9 +702,9 @@ fn register_from_starts(
                     rotation_tolerance: LEAD_ROTATION_TOLERANCE,
                     ..config.clone()
                 };
-                problem.set_lead_only(true);
+                problem.set_run_kind(RunKind::Lead);
                 let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
-                problem.set_lead_only(false);
+                problem.set_run_kind(RunKind::Registration);
                 let mut led = led?;
                 if led.stop_reason == StopReason::Cancelled {
                     best.offer(problem, led, StartKind::ScaleFreeLead);

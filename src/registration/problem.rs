@@ -240,6 +240,15 @@ const NEVER_QUERIED: u32 = u32::MAX;
 /// saves about 30 % (see docs/performance.md, "Design measurements behind the code").
 const COARSE_POINTS: usize = 5_000;
 
+/// What the driver's next runs on a [`CloudProblem`] are for.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum RunKind {
+    /// A lead run (its end is only a start for SIE): every update on the coarse subset.
+    Lead,
+    /// A registration: the coarse subset only while β is annealed.
+    Registration,
+}
+
 /// Why the source is matched: for an IRLS step (the sample or its coarse subset, with the
 /// solver's per-row terms) or for the final evaluation (every source point, not solved).
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -563,9 +572,9 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
 }
 
 impl CloudProblem<'_> {
-    /// Runs until the next call as a lead (see `lead_only`) or not.
-    pub fn set_lead_only(&mut self, lead_only: bool) {
-        self.lead_only = lead_only;
+    /// Runs until the next call as a lead (see `lead_only`) or as a registration.
+    pub fn set_run_kind(&mut self, kind: RunKind) {
+        self.lead_only = kind == RunKind::Lead;
     }
 
     /// RMS distance of the target points from their centroid (over at most 1024 evenly
