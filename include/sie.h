@@ -398,7 +398,13 @@ enum sie_cloud
   : uint32_t
 #endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
  {
+    /**
+     * The source cloud (the one moved by T_target_source).
+     */
     SIE_CLOUD_SOURCE = 0,
+    /**
+     * The target cloud.
+     */
     SIE_CLOUD_TARGET = 1,
 };
 #ifndef __cplusplus
@@ -582,7 +588,13 @@ typedef struct sie_trace_entry {
      * sigma of the first histogram; the scale of baseline costs.
      */
     double sigma;
+    /**
+     * Regulariser beta of the first histogram at this iteration (0 for baselines).
+     */
     double beta;
+    /**
+     * Penalty k of the first histogram at this iteration (0 for baselines).
+     */
     double penalty;
     /**
      * sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
@@ -597,7 +609,13 @@ typedef struct sie_trace_entry {
      * Size of this update: translation (input units) and rotation (radians).
      */
     double translation_change;
+    /**
+     * Rotation angle of this update (radians).
+     */
     double rotation_change;
+    /**
+     * Correspondences (matched rows) this iteration used.
+     */
     uint64_t correspondences;
     /**
      * 1-based update count.
@@ -663,6 +681,9 @@ typedef struct sie_model {
      * Histogram interval [range_lo, range_hi).
      */
     double range_lo;
+    /**
+     * Upper end of the histogram interval (exclusive).
+     */
     double range_hi;
     /**
      * Mean inlier probability of the samples inside the range.

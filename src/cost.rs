@@ -13,20 +13,41 @@ pub enum CostFunction {
     /// Least squares: w = 1.
     L2,
     /// w = 1 if u < threshold, else 0 (§5 "Truncated L2-norm").
-    TruncatedL2 { threshold: f64 },
+    TruncatedL2 {
+        /// The cut-off (residual units, > 0).
+        threshold: f64,
+    },
     /// w = max(u, δ)^(p-2): L1 (p = 1) and L0.1 (p = 0.1) in §5, as IRLS.
-    Lp { p: f64 },
+    Lp {
+        /// The exponent p, in (0, 2].
+        p: f64,
+    },
     /// Student-t with ν degrees of freedom and the scale re-estimated every iteration
     /// (Kerl et al. 2013, ν = 5): w = (ν+m)/(ν + u²/s²).
-    StudentT { dof: f64 },
+    StudentT {
+        /// Degrees of freedom ν (> 0).
+        dof: f64,
+    },
     /// w = 1 if u ≤ c, else c/u.
-    Huber { scale: f64 },
+    Huber {
+        /// The threshold c (residual units, > 0).
+        scale: f64,
+    },
     /// w = 1/(1 + (u/c)²).
-    Cauchy { scale: f64 },
+    Cauchy {
+        /// The scale c (residual units, > 0).
+        scale: f64,
+    },
     /// w = 1/(1 + (u/c)²)².
-    GemanMcClure { scale: f64 },
+    GemanMcClure {
+        /// The scale c (residual units, > 0).
+        scale: f64,
+    },
     /// w = (1 - (u/c)²)² if u < c, else 0.
-    Tukey { scale: f64 },
+    Tukey {
+        /// The cut-off c (residual units, > 0).
+        scale: f64,
+    },
 }
 
 /// δ of the Lp weight, so a zero residual does not give an infinite weight.
@@ -50,6 +71,8 @@ impl CostFunction {
         }
     }
 
+    /// Checks the parameter: p in (0, 2] for `Lp`, finite and > 0 for the others with one;
+    /// the error says which value is wrong.
     pub fn validate(&self) -> Result<(), String> {
         let value = self.parameter();
         let ok = match self {

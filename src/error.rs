@@ -3,9 +3,12 @@
 /// Why a registration or an estimate could not run. Nothing is returned with an error.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Error {
+    /// An argument is out of range or inconsistent (a setting, a transform, counts that do not
+    /// match, a normal that is not a unit vector); the message names it.
     InvalidArgument(String),
     /// A NaN or infinite coordinate or value; the message names the array and first index.
     NonFinite(String),
+    /// Not enough points (or residual rows) to run; the message says how many are needed.
     TooFewPoints(String),
     /// The noise callback failed or returned bad scales.
     Callback(String),

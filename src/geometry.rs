@@ -23,6 +23,7 @@ const KABSCH_RANK_RATIO: f64 = 1e-10;
 /// unconstrained and left out of the step.
 const PLANE_RANK_RATIO: f64 = 1e-9;
 
+/// T · p: the point p moved by the 4×4 homogeneous transform T (last row ignored).
 #[inline]
 pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
     [
@@ -32,17 +33,31 @@ pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
     ]
 }
 
+/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind every entry
+/// point's non-finite rule (file readers, the Rust API's checks and `skip_non_finite`, the C ABI).
+#[inline]
+pub fn is_finite(p: &Point) -> bool {
+    p.iter().all(|v| v.is_finite())
+}
+
+/// Index of the first point with a NaN or infinite coordinate ([`is_finite`]), if any.
+pub fn first_non_finite(points: &[Point]) -> Option<usize> {
+    points.iter().position(|p| !is_finite(p))
+}
+
 /// Euclidean length of a vector.
 #[inline]
 pub fn length(v: &Point) -> f64 {
     dot(v, v).sqrt()
 }
 
+/// Dot product a · b.
 #[inline]
 pub fn dot(a: &Point, b: &Point) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// Cross product a × b.
 #[inline]
 pub fn cross(a: &Point, b: &Point) -> Point {
     [
@@ -62,19 +77,23 @@ pub(crate) fn splitmix64(x: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The point as an nalgebra column vector.
 #[inline]
 pub fn vector(p: &Point) -> Vector3<f64> {
     Vector3::new(p[0], p[1], p[2])
 }
 
+/// The rotation block R (top-left 3×3) of a homogeneous transform.
 pub fn rotation_part(t: &Matrix4<f64>) -> Matrix3<f64> {
     t.fixed_view::<3, 3>(0, 0).into_owned()
 }
 
+/// The translation t (last column, first three rows) of a homogeneous transform.
 pub fn translation_part(t: &Matrix4<f64>) -> Vector3<f64> {
     t.fixed_view::<3, 1>(0, 3).into_owned()
 }
 
+/// The homogeneous transform [R t; 0 0 0 1].
 pub fn from_parts(r: &Matrix3<f64>, t: &Vector3<f64>) -> Matrix4<f64> {
     let mut m = Matrix4::identity();
     m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
@@ -188,6 +207,7 @@ pub(crate) fn homogeneous_last_row(matrix: &Matrix4<f64>) -> bool {
 /// A transform made exactly rigid, and how much that changed it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Rigid {
+    /// The rigid transform (rotation block exactly orthonormal, last row 0 0 0 1).
     pub transform: Matrix4<f64>,
     /// Largest change of a rotation-block entry (0 for an exact rotation; above
     /// [`NOTABLE_CORRECTION`] the matrix was visibly rounded and is worth a note).
@@ -217,6 +237,8 @@ pub fn orthonormalised(t: &Matrix4<f64>) -> Matrix4<f64> {
 
 /// Result of one weighted solve.
 pub struct Solve {
+    /// The solved transform: the weighted fit (point-to-point), or the current transform moved
+    /// by one Gauss-Newton step (point-to-plane).
     pub transform: Matrix4<f64>,
     /// Some direction of the problem was not constrained by the data.
     pub rank_deficient: bool,

@@ -14,11 +14,12 @@ use pcd_rs::{DynReader, DynRecord, Field};
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use crate::geometry::Point;
+use crate::geometry::{Point, first_non_finite, is_finite};
 
 /// A cloud read from a file.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CloudFile {
+    /// Coordinates in the file's units (read as f64).
     pub points: Vec<Point>,
     /// From `normal_x/normal_y/normal_z` or `nx/ny/nz` fields when the file has them; a
     /// non-finite normal becomes `[0, 0, 0]` ("no normal", as `estimate_normals` gives).
@@ -48,7 +49,9 @@ pub fn read_cloud(path: &Path) -> Result<CloudFile, String> {
 /// A point-cloud file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CloudFormat {
+    /// PCL's `.pcd`: ascii, binary or binary_compressed.
     Pcd,
+    /// `.ply`: ascii or binary (either endianness).
     Ply,
     /// Plain text: one point per line, the first three numbers separated by whitespace and/or
     /// commas (further columns ignored), `#` starts a comment; a first line without any number
@@ -239,14 +242,13 @@ impl RawCloud {
         if points.is_empty() {
             return Err("the cloud has no points".into());
         }
-        let is_finite = |p: &Point| p.iter().all(|c| c.is_finite());
         if let Some(normals) = normals.as_mut() {
             for n in normals.iter_mut().filter(|n| !is_finite(n)) {
                 *n = [0.0; 3];
             }
         }
         let total = points.len();
-        let Some(first_bad) = points.iter().position(|p| !is_finite(p)) else {
+        let Some(first_bad) = first_non_finite(&points) else {
             return Ok(CloudFile {
                 points,
                 normals,

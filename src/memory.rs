@@ -14,9 +14,17 @@ use std::fmt;
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum MemoryError {
     /// More bytes than the address space holds (`isize::MAX`): the count is impossible.
-    TooLarge { what: String },
+    TooLarge {
+        /// What the memory was for (names the input).
+        what: String,
+    },
     /// The allocator refused: not enough memory (or address space) left for this input.
-    OutOfMemory { what: String, bytes: usize },
+    OutOfMemory {
+        /// What the memory was for (names the input).
+        what: String,
+        /// How many bytes were asked for.
+        bytes: usize,
+    },
 }
 
 impl fmt::Display for MemoryError {

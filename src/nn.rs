@@ -1,14 +1,10 @@
 //! Exact nearest-neighbour search on a fixed cloud: a thin wrapper over a kiddo k-d tree
 //! (the only place that names kiddo, so a version bump touches one file).
 //!
-//! Coordinates are stored as f64. Measured (release, 100k uniform points, 100k queries,
-//! kiddo 6.3): nearest-one 30 ms (f64) vs 29 ms (f32, centred), 10-NN 137 ms vs 133 ms,
-//! build 5.5 ms vs 4.5 ms — a 3–5 % gain that does not pay for re-sorting by exact distance.
-//!
-//! Leaf layout: kiddo's `ImmutableKdTree` alias stores leaves as arenas; the flat layout
-//! (`FlatVec`, same Eytzinger stems and 32-point buckets) answers nearest-one queries twice as
-//! fast on surface clouds (10k points: 221 vs 455 ns; 100k: 423 vs 830 ns, spatially ordered
-//! queries) at the same nearest-two and 10-NN cost (550 vs 528 ns, 1.40 vs 1.43 µs).
+//! Coordinates are stored as f64: f32 gains a few percent, which does not pay for re-sorting by
+//! exact distance. Leaves use kiddo's flat layout (`FlatVec`, Eytzinger stems, 32-point
+//! buckets): twice as fast for nearest-one on surface clouds as the arena layout, same cost
+//! otherwise. The measurements: see docs/performance.md, "Design measurements behind the code".
 use std::num::NonZeroUsize;
 
 use kiddo::SquaredEuclidean;
@@ -131,6 +127,7 @@ impl NearestNeighbours {
         self.len
     }
 
+    /// Whether the index holds no point.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
@@ -240,7 +237,8 @@ impl NearestNeighbours {
             return;
         };
         // k locations hold at least k points. kiddo 6 returns a fresh Vec per query; its
-        // `with_scratch` path only reuses the traversal stack and measured no faster.
+        // `with_scratch` path only reuses the traversal stack and is no faster (see
+        // docs/performance.md).
         let wanted = k.min(NonZeroUsize::new(self.distinct_len()).unwrap_or(NonZeroUsize::MIN));
         let found = self
             .tree

@@ -8,7 +8,9 @@
 /// Which cloud a batch of points belongs to (also the C callback's `cloud` argument).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CloudRole {
+    /// The source cloud (the one moved onto the target).
     Source = 0,
+    /// The target cloud.
     Target = 1,
 }
 

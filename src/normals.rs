@@ -251,7 +251,7 @@ fn covariance(points: &[Point], selected: &[usize]) -> [[f64; 3]; 3] {
 /// separated, from the longest cross product of two rows of A − λ·I; if that is the largest
 /// one, the smallest comes from the 2×2 problem in its orthogonal complement. Accurate to
 /// rounding / eigen-gap like nalgebra's iterative `SymmetricEigen` (the tests compare the two)
-/// and 3× faster (200k matrices: 20 ms vs 61 ms).
+/// and about 3× faster (see docs/performance.md, "Design measurements behind the code").
 fn smallest_eigenvector(matrix: &[[f64; 3]; 3]) -> Option<Point> {
     // Unit scale keeps the products below far from overflow and underflow.
     let scale = matrix.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));

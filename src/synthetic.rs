@@ -143,6 +143,7 @@ pub const ROOM_GT_TRANSLATION: [f64; 3] = [0.15, -0.1, 0.08];
 /// Room interior in the world frame (metres): 6 × 5 × 3 centred on the sensor at the origin,
 /// 1.2 m above the floor, so that normals oriented towards the origin face into the room.
 pub const ROOM_MIN: [f64; 3] = [-3.0, -2.5, -1.2];
+/// Far corner of the room (m); see [`ROOM_MIN`].
 pub const ROOM_MAX: [f64; 3] = [3.0, 2.5, 1.8];
 
 /// Width of the slab that only one scan sees: the target lacks x > 3 − w (with the +x wall),

@@ -885,6 +885,52 @@ fn bad_files_give_one_line_and_exit_code_2() {
     );
 }
 
+/// `--file-normals` keeps the library's rule for given normals: a normal that is neither of unit
+/// length nor 0 0 0 is bad input, one line naming the file and the normal, exit code 2.
+#[test]
+fn file_normals_that_are_not_unit_vectors_give_one_line_and_exit_code_2() {
+    let dir = scratch("normals");
+    let good = dir.join("good.xyz");
+    fs::write(&good, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 0\n1 0 1\n0 1 1\n1 1 1\n").unwrap();
+    let with_normals = |fourth_normal: &str| {
+        let mut ply = "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n\
+            property float z\nproperty float nx\nproperty float ny\nproperty float nz\nend_header\n"
+            .to_string();
+        for (i, point) in [
+            "0 0 0", "1 0 0", "0 1 0", "0 0 1", "1 1 0", "1 0 1", "0 1 1", "1 1 1",
+        ]
+        .iter()
+        .enumerate()
+        {
+            let normal = if i == 3 { fourth_normal } else { "0 0 1" };
+            ply.push_str(&format!("{point} {normal}\n"));
+        }
+        ply
+    };
+    let bad = dir.join("normals.ply");
+    fs::write(&bad, with_normals("0 0 0.5")).unwrap();
+    let output = sie(&["register", arg(&good), arg(&bad), "--file-normals"]);
+    let stderr = text(&output.stderr);
+    assert_eq!(output.status.code(), Some(2), "{stderr}");
+    assert!(output.stdout.is_empty(), "{}", text(&output.stdout));
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.starts_with("sie: ")
+            && stderr.contains("normals.ply")
+            && stderr.contains("normal[3] has length 0.5")
+            && stderr.contains("unit vectors"),
+        "{stderr}"
+    );
+    // 0 0 0 is "no normal" and passes; so do unit normals.
+    fs::write(&bad, with_normals("0 0 0")).unwrap();
+    let output = sie(&["register", arg(&good), arg(&bad), "--file-normals", "-q"]);
+    assert!(
+        matches!(output.status.code(), Some(0 | 1 | 3)),
+        "{}",
+        text(&output.stderr)
+    );
+}
+
 /// A PCD file holding more points than its header declares: the declared points are read (as
 /// PCL does) and a warning says what was left, on stderr even with -q and in the JSON report.
 #[test]

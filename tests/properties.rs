@@ -28,7 +28,7 @@ fn options(pooled: bool, shape: u8) -> SieOptions {
         } else {
             HistogramMode::PerColumn
         },
-        shape: match shape {
+        shape_exponent: match shape {
             0 => NoiseShape::Fixed(2.0),
             1 => NoiseShape::Fixed(1.0),
             _ => NoiseShape::Estimated,
@@ -69,7 +69,7 @@ proptest! {
         prop_assert!(estimate.probabilities.iter().all(|p| (0.0..=1.0).contains(p)));
         prop_assert!((0.0..=1.0).contains(&estimate.prior));
         for m in &estimate.models {
-            prop_assert!(m.shape.sigma.is_finite() && m.shape.alpha.is_finite() && m.shape.p.is_finite());
+            prop_assert!(m.inlier.sigma.is_finite() && m.inlier.alpha.is_finite() && m.inlier.p.is_finite());
             prop_assert!(m.probability.iter().all(|p| (0.0..=1.0).contains(p)));
         }
     }

@@ -228,11 +228,11 @@ fn per_column_histograms_and_estimated_shape_also_register() {
             ..Default::default()
         },
         sie::SieOptions {
-            shape: NoiseShape::Estimated,
+            shape_exponent: NoiseShape::Estimated,
             ..Default::default()
         },
         sie::SieOptions {
-            shape: NoiseShape::Fixed(1.0),
+            shape_exponent: NoiseShape::Fixed(1.0),
             ..Default::default()
         },
     ] {
@@ -248,7 +248,7 @@ fn per_column_histograms_and_estimated_shape_also_register() {
         if sie.histogram == HistogramMode::PerColumn {
             assert_eq!(result.sigma.len(), 3);
         }
-        if sie.shape == NoiseShape::Estimated {
+        if sie.shape_exponent == NoiseShape::Estimated {
             // Gaussian noise: the estimated exponent is near 2.
             assert!((result.noise_shape - 2.0).abs() < 0.5, "p {}", result.noise_shape);
         }
@@ -595,7 +595,7 @@ fn fewer_than_ten_residuals_are_all_taken_as_inliers_without_a_peak() {
             "{residuals:?}: {probabilities:?}"
         );
         assert!(!estimator.models()[0].peak_found);
-        assert!(estimator.models()[0].shape.sigma.is_finite());
+        assert!(estimator.models()[0].inlier.sigma.is_finite());
         // The standalone estimate says so instead of returning those caps as an answer.
         match sie::estimate_inliers(&residuals, 1, None, 0.0, &sie::SieOptions::default()) {
             Err(sie::Error::TooFewPoints(message)) => assert!(

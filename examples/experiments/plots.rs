@@ -1,7 +1,8 @@
 //! SVG figures: the paper's failure-ratio / mean-error panels (2 rows × 3 outlier levels, one
 //! line per method) and the residual histogram with the fitted model and P(inlier | r)
-//! (Fig. 1, right). SVG keeps the files small and leaves text rendering to the viewer; the
-//! embedded Noto Sans is registered only so plotters can measure text for the layout.
+//! (Fig. 1, right; drawn by the CLI's `--plot` code). SVG keeps the files small and leaves text
+//! rendering to the viewer; the embedded Noto Sans is registered only so plotters can measure
+//! text for the layout.
 use std::path::Path;
 use std::sync::Once;
 
@@ -199,111 +200,33 @@ fn draw_panel<DB: DrawingBackend>(
     Ok(())
 }
 
-const HISTOGRAM_WIDTH: u32 = 900;
-const HISTOGRAM_HEIGHT: u32 = 520;
-const BAR_COLOUR: RGBColor = RGBColor(158, 190, 222);
-const SMOOTHED_COLOUR: RGBColor = RGBColor(31, 86, 150);
-const MODEL_COLOUR: RGBColor = RGBColor(204, 40, 40);
-const PROBABILITY_COLOUR: RGBColor = RGBColor(30, 140, 60);
-
-/// The paper's Fig. 1 (right) for one fitted histogram: raw counts as bars, the smoothed
-/// histogram the model is fitted to, the fitted inlier model G and P(inlier | r) on a 0..1
-/// axis on the right.
+/// The paper's Fig. 1 (right) for one fitted histogram, drawn by the CLI's `--plot` code
+/// (`src/cli/plot.rs`, compiled in below): raw counts as bars, the smoothed histogram the model
+/// is fitted to, the fitted inlier model G (σ + β dashed while β is not negligible) and
+/// P(inlier | r) on a 0..1 axis on the right. `.svg` or `.png`, from the extension.
 pub fn histogram_figure(
     path: &Path,
     title: &str,
     x_label: &str,
     model: &HistogramModel,
 ) -> Result<(), String> {
-    register_font();
-    let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-    if model.bins() == 0 || model.hi <= model.lo {
-        return Err(fail(&"no fitted histogram"));
-    }
-    let root = SVGBackend::new(path, (HISTOGRAM_WIDTH, HISTOGRAM_HEIGHT)).into_drawing_area();
-    draw_histogram(&root, title, x_label, model).map_err(|e| fail(&e))?;
-    root.present().map_err(|e| fail(&e))
+    let text = fig1::PlotText {
+        title,
+        x_label,
+        panel_captions: Vec::new(),
+    };
+    fig1::write_plot(path, std::slice::from_ref(model), &text)
 }
 
-fn draw_histogram<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    title: &str,
-    x_label: &str,
-    model: &HistogramModel,
-) -> DrawResult<DB> {
-    root.fill(&WHITE)?;
-    let (lo, hi) = (model.lo, model.hi);
-    let width = model.bin_width();
-    let peak = model
-        .counts
-        .iter()
-        .chain(&model.smoothed)
-        .copied()
-        .chain([model.model(model.shape.mu, false)])
-        .fold(0.0, f64::max);
-    let y_max = if peak > 0.0 { peak * 1.1 } else { 1.0 };
-    let mut chart = ChartBuilder::on(root)
-        .margin(14)
-        .caption(title, ("sans-serif", 18))
-        .x_label_area_size(45)
-        .y_label_area_size(65)
-        .right_y_label_area_size(60)
-        .build_cartesian_2d(lo..hi, 0.0..y_max)?
-        .set_secondary_coord(lo..hi, 0.0..1.0);
-    chart
-        .configure_mesh()
-        .light_line_style(WHITE.mix(0.0))
-        .bold_line_style(BLACK.mix(0.08))
-        .x_desc(x_label)
-        .y_desc("residuals per bin")
-        .y_label_formatter(&|v| format!("{v:.0}"))
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 15))
-        .draw()?;
-    chart
-        .configure_secondary_axes()
-        .y_desc("P(inlier | r)")
-        .label_style(("sans-serif", 13))
-        .axis_desc_style(("sans-serif", 15))
-        .draw()?;
-    chart
-        .draw_series(model.counts.iter().enumerate().map(|(bin, &count)| {
-            let left = lo + bin as f64 * width;
-            Rectangle::new([(left, 0.0), (left + width, count)], BAR_COLOUR.filled())
-        }))?
-        .label("histogram (counts)")
-        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], BAR_COLOUR.filled()));
-    chart
-        .draw_series(LineSeries::new(
-            (0..model.bins()).map(|bin| (model.bin_centre(bin), model.smoothed[bin])),
-            SMOOTHED_COLOUR.stroke_width(2),
-        ))?
-        .label("smoothed histogram")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], SMOOTHED_COLOUR.stroke_width(2)));
-    let samples = 400;
-    let grid: Vec<f64> = (0..=samples)
-        .map(|i| lo + (hi - lo) * i as f64 / samples as f64)
-        .collect();
-    chart
-        .draw_series(LineSeries::new(
-            grid.iter().map(|&x| (x, model.model(x, false))),
-            MODEL_COLOUR.stroke_width(3),
-        ))?
-        .label(format!("fitted inlier model G (σ = {:.2e})", model.shape.sigma))
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], MODEL_COLOUR.stroke_width(3)));
-    chart
-        .draw_secondary_series(LineSeries::new(
-            grid.iter().map(|&x| (x, model.probability(x))),
-            PROBABILITY_COLOUR.stroke_width(2),
-        ))?
-        .label("P(inlier | r), right axis")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], PROBABILITY_COLOUR.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 14))
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK.mix(0.4))
-        .draw()?;
-    Ok(())
-}
+// One drawing of Fig. 1 for `sie register --plot` and this reproduction: the CLI's plot module
+// and the two it uses, compiled into the example (the CLI is a binary, not a library, and
+// plotting is no part of the library's API). Not every item of them is used here.
+#[allow(dead_code)]
+#[path = "../../src/cli/plot.rs"]
+mod fig1;
+#[allow(dead_code)]
+#[path = "../../src/cli/glyphs.rs"]
+mod glyphs;
+#[allow(dead_code)]
+#[path = "../../src/cli/numbers.rs"]
+mod numbers;

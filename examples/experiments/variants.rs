@@ -55,7 +55,7 @@ pub fn register(data: &Correspondences, hold_broad_jumps: bool) -> Matrix4<f64> 
         estimator.fit(&residuals, 3);
         if hold_broad_jumps && annealing && iteration > 0 {
             let (old, new) = (&previous.models()[0], &estimator.models()[0]);
-            if new.shape.sigma > old.shape.sigma + old.beta {
+            if new.inlier.sigma > old.inlier.sigma + old.beta {
                 estimator = previous;
             }
         }

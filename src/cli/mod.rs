@@ -7,6 +7,7 @@
 pub mod args;
 pub mod demo;
 pub mod glyphs;
+pub mod numbers;
 pub mod plot;
 pub mod progress;
 pub mod register;

@@ -4,6 +4,9 @@
 //!
 //! Text is drawn from a font compiled into the binary (no system font libraries); PNG pixels
 //! are encoded with the `png` crate, SVG is written by plotters.
+//!
+//! The one drawing of Fig. 1: the paper reproduction (examples/experiments/plots.rs) compiles
+//! this file, with `glyphs` and `numbers`, into itself rather than drawing its own.
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
@@ -15,7 +18,7 @@ use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::series::DashedLineSeries;
 use plotters::style::FontStyle;
-use sie::HistogramModel;
+use sie::{HistogramModel, ModelWidth};
 
 use super::glyphs::GlyphText;
 
@@ -147,15 +150,15 @@ fn draw_panel<DB: DrawingBackend>(
     let grid: Vec<f64> = (0..=CURVE_SAMPLES)
         .map(|i| lo + (hi - lo) * i as f64 / CURVE_SAMPLES as f64)
         .collect();
-    let show_beta = model.beta >= VISIBLE_BETA_RATIO * model.shape.sigma;
+    let show_beta = model.beta >= VISIBLE_BETA_RATIO * model.inlier.sigma;
     let peak = model
         .counts
         .iter()
         .chain(&model.smoothed)
         .copied()
         .chain([
-            model.model(model.shape.mu, false),
-            model.model(model.shape.mu, true),
+            model.model(model.inlier.mu, ModelWidth::Sigma),
+            model.model(model.inlier.mu, ModelWidth::SigmaPlusBeta),
         ])
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
@@ -206,25 +209,26 @@ fn draw_panel<DB: DrawingBackend>(
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], SMOOTHED_COLOUR.stroke_width(2)));
     chart
         .draw_series(LineSeries::new(
-            grid.iter().map(|&x| (x, model.model(x, false))),
+            grid.iter().map(|&x| (x, model.model(x, ModelWidth::Sigma))),
             MODEL_COLOUR.stroke_width(3),
         ))?
         .label(format!(
             "fitted inlier model G (σ = {})",
-            super::report::significant(model.shape.sigma)
+            super::numbers::significant(model.inlier.sigma)
         ))
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], MODEL_COLOUR.stroke_width(3)));
     if show_beta {
         chart
             .draw_series(DashedLineSeries::new(
-                grid.iter().map(|&x| (x, model.model(x, true))),
+                grid.iter()
+                    .map(|&x| (x, model.model(x, ModelWidth::SigmaPlusBeta))),
                 8,
                 6,
                 MODEL_COLOUR.stroke_width(2),
             ))?
             .label(format!(
                 "G with σ + β (β = {})",
-                super::report::significant(model.beta)
+                super::numbers::significant(model.beta)
             ))
             .legend(|(x, y)| {
                 DashedPathElement::new([(x, y), (x + 18, y)], 5, 3, MODEL_COLOUR.stroke_width(2))

@@ -13,6 +13,7 @@ use sie::io::{
     CloudFile, NonFinite, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz,
 };
 use sie::memory;
+use sie::registration::require_unit_normals;
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, Verdict, register_clouds,
@@ -105,6 +106,9 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
                 args.target.display()
             ))
         })?;
+        // The library's rule, checked here to name the file.
+        require_unit_normals("normal", normals)
+            .map_err(|e| CliError::new(format!("{}: {e}", args.target.display())))?;
         Some(normals)
     } else {
         None
@@ -341,7 +345,7 @@ fn method_description(args: &RegisterArgs, config: &RegistrationConfig) -> Strin
         NoiseModel::QuadraticDepth => "noise ∝ depth²".into(),
     });
     if config.cost == CostFunction::Sie {
-        match config.sie.shape {
+        match config.sie.shape_exponent {
             NoiseShape::Fixed(2.0) => {}
             NoiseShape::Fixed(p) => parts.push(format!("noise shape p = {p}")),
             NoiseShape::Estimated => parts.push("noise shape estimated".into()),

@@ -7,6 +7,8 @@ use serde::Serialize;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
 
+pub use super::numbers::significant;
+
 /// Rotation (degrees) and translation distance between an estimate and the ground truth:
 /// the size of truth⁻¹ · estimate.
 pub fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
@@ -40,20 +42,6 @@ pub fn format_transform(t: &Matrix4<f64>, indent: &str) -> String {
         );
     }
     text
-}
-
-/// About four significant digits, switching to exponent form where fixed decimals would not
-/// show them.
-pub fn significant(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() {
-        return format!("{x}");
-    }
-    let magnitude = x.abs().log10().floor();
-    if !(-4.0..6.0).contains(&magnitude) {
-        return format!("{x:.3e}");
-    }
-    let decimals = (3.0 - magnitude).max(0.0) as usize;
-    format!("{x:.decimals$}")
 }
 
 /// One cloud as read.
@@ -249,7 +237,7 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
             if result
                 .histograms
                 .iter()
-                .any(|h| !h.peak_found && h.shape.sigma != 0.0)
+                .any(|h| !h.peak_found && h.inlier.sigma != 0.0)
             {
                 weak.push("no inlier peak in the residual histogram".to_string());
             }
@@ -397,15 +385,6 @@ pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn significant_digits() {
-        assert_eq!(significant(0.0143217), "0.01432");
-        assert_eq!(significant(12.345678), "12.35");
-        assert_eq!(significant(1234.5), "1234");
-        assert_eq!(significant(2.5e-7), "2.500e-7");
-        assert_eq!(significant(0.0), "0");
-    }
 
     #[test]
     fn transform_text_reads_back() {

@@ -7,22 +7,7 @@ use super::input::{check_optional_output, check_output, read_array, write_output
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
 use crate::memory;
-use crate::sie::estimate::estimate_inliers;
-
-fn check_finite(values: &[f64], name: &str, cols: usize) -> Result<(), FfiError> {
-    match values.iter().position(|v| !v.is_finite()) {
-        None => Ok(()),
-        Some(index) => Err(FfiError::new(
-            sie_status::NonFiniteInput,
-            format!(
-                "{name}[{index}] is {} (row index {}, column index {}, from 0)",
-                values[index],
-                index / cols,
-                index % cols
-            ),
-        )),
-    }
-}
+use crate::sie::estimate::{check_estimate_values, estimate_inliers};
 
 /// Statistical Inlier Estimation on a residual matrix, without registration: P(inlier) per row.
 ///
@@ -80,26 +65,14 @@ pub unsafe extern "C" fn sie_estimate_inliers(
             .ok_or_else(|| FfiError::invalid(format!("rows * cols overflows ({rows} * {cols})")))?;
         // SAFETY: readable per the contract.
         let matrix = unsafe { read_array(residuals, len, "residuals") }?;
-        check_finite(&matrix, "residuals", cols)?;
         let scales = if row_scales.is_null() {
             None
         } else {
             // SAFETY: readable per the contract.
-            let scales = unsafe { read_array(row_scales, rows, "row_scales") }?;
-            check_finite(&scales, "row_scales", 1)?;
-            if let Some(index) = scales.iter().position(|&s| s <= 0.0) {
-                return Err(FfiError::invalid(format!(
-                    "row_scales[{index}] is {}; scales must be > 0",
-                    scales[index]
-                )));
-            }
-            Some(scales)
+            Some(unsafe { read_array(row_scales, rows, "row_scales") }?)
         };
-        if !(beta.is_finite() && beta >= 0.0) {
-            return Err(FfiError::invalid(format!(
-                "beta must be finite and >= 0, got {beta}"
-            )));
-        }
+        // The core's rules, before asking for memory.
+        check_estimate_values(&matrix, cols, scales.as_deref(), beta)?;
 
         memory::ensure_available(memory::estimate_bytes(len), "the inlier estimate")?;
         let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &call.state.config.sie)?;

@@ -7,7 +7,7 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::{sie_status, sie_summary};
-use crate::geometry::{Point, Rigid};
+use crate::geometry::{Point, Rigid, is_finite};
 use crate::memory::try_vec;
 use crate::registration::WarmStart;
 
@@ -178,7 +178,8 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
             [first.read(), first.add(1).read(), first.add(2).read()]
         };
         let point = point.map(Coordinate::to_f64);
-        if let Some(axis) = point.iter().position(|v| !v.is_finite() && !allow_non_finite) {
+        if !allow_non_finite && !is_finite(&point) {
+            let axis = point.iter().position(|v| !v.is_finite()).unwrap_or(0);
             return Err(FfiError::new(
                 sie_status::NonFiniteInput,
                 format!(

@@ -81,6 +81,47 @@ pub enum sie_status {
     Panic = 100,
 }
 
+impl sie_status {
+    /// Every status, for the `u32` -> `sie_status` mapping of `sie_status_str`.
+    const ALL: [sie_status; 12] = [
+        Self::Ok,
+        Self::NullArgument,
+        Self::InvalidArgument,
+        Self::NonFiniteInput,
+        Self::TooFewPoints,
+        Self::CallbackFailed,
+        Self::NoResult,
+        Self::BufferTooSmall,
+        Self::Busy,
+        Self::Cancelled,
+        Self::OutOfMemory,
+        Self::Panic,
+    ];
+
+    /// The status with this numeric value, `None` for values that are not a `sie_status`.
+    fn from_u32(value: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|&status| status as u32 == value)
+    }
+
+    /// The short text `sie_status_str` returns for this status (static, NUL-terminated).
+    const fn message(self) -> &'static CStr {
+        match self {
+            Self::Ok => c"ok",
+            Self::NullArgument => c"null argument",
+            Self::InvalidArgument => c"invalid argument",
+            Self::NonFiniteInput => c"non-finite input",
+            Self::TooFewPoints => c"too few points",
+            Self::CallbackFailed => c"noise callback failed",
+            Self::NoResult => c"no result",
+            Self::BufferTooSmall => c"buffer too small",
+            Self::Busy => c"context busy",
+            Self::Cancelled => c"cancelled",
+            Self::OutOfMemory => c"out of memory",
+            Self::Panic => c"internal panic",
+        }
+    }
+}
+
 /// The robust cost used to weight correspondences (`sie_context_set_cost_function`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -207,7 +248,9 @@ pub enum sie_start_kind {
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum sie_cloud {
+    /// The source cloud (the one moved by T_target_source).
     Source = 0,
+    /// The target cloud.
     Target = 1,
 }
 
@@ -336,6 +379,7 @@ pub struct sie_model {
     pub penalty: f64,
     /// Histogram interval [range_lo, range_hi).
     pub range_lo: f64,
+    /// Upper end of the histogram interval (exclusive).
     pub range_hi: f64,
     /// Mean inlier probability of the samples inside the range.
     pub mean_inlier_probability: f64,
@@ -354,7 +398,9 @@ pub struct sie_model {
 pub struct sie_trace_entry {
     /// sigma of the first histogram; the scale of baseline costs.
     pub sigma: f64,
+    /// Regulariser beta of the first histogram at this iteration (0 for baselines).
     pub beta: f64,
+    /// Penalty k of the first histogram at this iteration (0 for baselines).
     pub penalty: f64,
     /// sum P(inlier) / source points, as `sie_summary.inlier_fraction` (unmatched points count
     /// 0), over the source points this iteration matched, with this update's weights.
@@ -363,7 +409,9 @@ pub struct sie_trace_entry {
     pub rmse: f64,
     /// Size of this update: translation (input units) and rotation (radians).
     pub translation_change: f64,
+    /// Rotation angle of this update (radians).
     pub rotation_change: f64,
+    /// Correspondences (matched rows) this iteration used.
     pub correspondences: u64,
     /// 1-based update count.
     pub iteration: u32,
@@ -552,23 +600,11 @@ pub extern "C" fn sie_version_number() -> u32 {
 /// are not a `sie_status`. Never NULL.
 #[unsafe(no_mangle)]
 pub extern "C" fn sie_status_str(status: u32) -> *const c_char {
-    without_context(c"unknown status".as_ptr(), || {
-        let text = match status {
-            0 => c"ok",
-            1 => c"null argument",
-            2 => c"invalid argument",
-            3 => c"non-finite input",
-            4 => c"too few points",
-            5 => c"noise callback failed",
-            6 => c"no result",
-            7 => c"buffer too small",
-            8 => c"context busy",
-            9 => c"cancelled",
-            10 => c"out of memory",
-            100 => c"internal panic",
-            _ => c"unknown status",
-        };
-        text.as_ptr()
+    const UNKNOWN: &CStr = c"unknown status";
+    without_context(UNKNOWN.as_ptr(), || {
+        sie_status::from_u32(status)
+            .map_or(UNKNOWN, sie_status::message)
+            .as_ptr()
     })
 }
 

@@ -17,11 +17,8 @@ use crate::geometry::Rigid;
 use crate::memory;
 use crate::noise::NoiseScales;
 use crate::registration::{
-    Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
+    Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry, require_unit_normals,
 };
-
-/// How far a given target normal's length may be from 1.
-const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
 
 /// A strided array of three coordinates per point, as passed by C.
 #[derive(Clone, Copy)]
@@ -55,19 +52,6 @@ impl<T: Coordinate> PointArray<T> {
             )
         }
     }
-}
-
-pub(super) fn check_unit_normals(normals: &[Point], name: &str) -> Result<(), FfiError> {
-    for (index, normal) in normals.iter().enumerate() {
-        let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
-        // An exact zero vector marks a target point without a normal: it is never matched.
-        if length != 0.0 && (length - 1.0).abs() > NORMAL_LENGTH_TOLERANCE {
-            return Err(FfiError::invalid(format!(
-                "{name}[{index}] has length {length}; normals must be unit vectors (or 0 0 0 for none)"
-            )));
-        }
-    }
-    Ok(())
 }
 
 /// Runs the core with the context's configuration and noise source; on success writes the
@@ -146,7 +130,7 @@ unsafe fn register_clouds_from<T: Coordinate>(
             Some(array) => {
                 // SAFETY: readable for its count and stride per the contract.
                 let normals = unsafe { array.read(state.config.skip_non_finite) }?;
-                check_unit_normals(&normals, array.name)?;
+                require_unit_normals(array.name, &normals)?;
                 Some(normals)
             }
             None => None,

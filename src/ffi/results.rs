@@ -9,7 +9,7 @@ use super::{
     sie_trace_entry, sie_verdict,
 };
 use crate::registration::{RegistrationResult, StartKind, StopReason, Verdict};
-use crate::sie::HistogramModel;
+use crate::sie::{HistogramModel, ModelWidth};
 
 fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> {
     state.result.as_ref().ok_or_else(|| {
@@ -87,10 +87,10 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
 
 pub(crate) fn model_of(histogram: &HistogramModel) -> sie_model {
     sie_model {
-        mu: histogram.shape.mu,
-        sigma: histogram.shape.sigma,
-        alpha: histogram.shape.alpha,
-        shape: histogram.shape.p,
+        mu: histogram.inlier.mu,
+        sigma: histogram.inlier.sigma,
+        alpha: histogram.inlier.alpha,
+        shape: histogram.inlier.p,
         beta: histogram.beta,
         penalty: histogram.penalty,
         range_lo: histogram.lo,
@@ -245,7 +245,7 @@ pub unsafe extern "C" fn sie_context_get_histogram(
             ));
         }
         let model_values: Vec<f64> = (0..bins)
-            .map(|bin| histogram.model(histogram.bin_centre(bin), false))
+            .map(|bin| histogram.model(histogram.bin_centre(bin), ModelWidth::Sigma))
             .collect();
         let contents: [&[f64]; 4] = [
             &histogram.counts,

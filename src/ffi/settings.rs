@@ -235,7 +235,7 @@ pub unsafe extern "C" fn sie_context_set_noise_shape(ctx: *mut sie_context, p: f
     // SAFETY: forwarded contract.
     unsafe {
         update_config(ctx, |config| {
-            config.sie.shape = if p == 0.0 {
+            config.sie.shape_exponent = if p == 0.0 {
                 NoiseShape::Estimated
             } else {
                 NoiseShape::Fixed(p)

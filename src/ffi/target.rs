@@ -4,9 +4,9 @@
 
 use super::boundary::{FfiError, boundary, without_context};
 use super::input::{Coordinate, check_output, read_points, read_transform, write_output};
-use super::register::{check_unit_normals, run_and_store};
+use super::register::run_and_store;
 use super::{sie_context, sie_status};
-use crate::registration::{PrepareOptions, PreparedTarget, register_clouds_to};
+use crate::registration::{PrepareOptions, PreparedTarget, register_clouds_to, require_unit_normals};
 
 /// A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
 /// (given, or estimated by the registrations that reach them and kept for later ones).
@@ -49,7 +49,7 @@ unsafe fn prepare_target_from<T: Coordinate>(
         } else {
             // SAFETY: readable for its count and stride per the contract.
             let normals = unsafe { read_points(normals, count, normals_stride_bytes, "normals", skip) }?;
-            check_unit_normals(&normals, "normals")?;
+            require_unit_normals("normals", &normals)?;
             Some(normals)
         };
         let options = PrepareOptions::from_config(&state.config);

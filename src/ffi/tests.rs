@@ -62,7 +62,7 @@ impl Drop for Context {
 
 fn histogram() -> HistogramModel {
     HistogramModel {
-        shape: GeneralisedGaussian {
+        inlier: GeneralisedGaussian {
             alpha: 10.0,
             mu: 0.0,
             sigma: 0.5,
@@ -153,6 +153,21 @@ fn status_strings_and_version() {
         sie_version_number(),
         (parts[0] << 16) | (parts[1] << 8) | parts[2]
     );
+}
+
+/// The text table is built from the enum: every status maps back from its number and has a
+/// text of its own.
+#[test]
+fn every_status_has_its_own_text() {
+    let mut texts = Vec::new();
+    for status in sie_status::ALL {
+        assert_eq!(sie_status::from_u32(status as u32), Some(status));
+        let text = unsafe { CStr::from_ptr(sie_status_str(status as u32)) };
+        assert_eq!(text, status.message());
+        assert!(!texts.contains(&text), "{text:?} twice");
+        texts.push(text);
+    }
+    assert_eq!(sie_status::from_u32(11), None);
 }
 
 #[test]
@@ -270,9 +285,9 @@ fn setters_store_valid_values() {
         assert_eq!(sie_context_set_metric(ctx.0, 0), sie_status::Ok);
         assert_eq!(ctx.config().metric, Metric::PointToPoint);
         assert_eq!(sie_context_set_noise_shape(ctx.0, 0.0), sie_status::Ok);
-        assert_eq!(ctx.config().sie.shape, NoiseShape::Estimated);
+        assert_eq!(ctx.config().sie.shape_exponent, NoiseShape::Estimated);
         assert_eq!(sie_context_set_noise_shape(ctx.0, 1.0), sie_status::Ok);
-        assert_eq!(ctx.config().sie.shape, NoiseShape::Fixed(1.0));
+        assert_eq!(ctx.config().sie.shape_exponent, NoiseShape::Fixed(1.0));
         assert_eq!(sie_context_set_histogram_mode(ctx.0, 1), sie_status::Ok);
         assert_eq!(ctx.config().sie.histogram, HistogramMode::PerColumn);
         assert_eq!(sie_context_set_regularizer(ctx.0, 0.0, 0.25), sie_status::Ok);
@@ -379,7 +394,7 @@ fn documented_defaults_match_the_core() {
         (1e-6, 1e-6)
     );
     assert_eq!(config.noise, crate::noise::NoiseModel::Constant);
-    assert_eq!(config.sie.shape, NoiseShape::Fixed(2.0));
+    assert_eq!(config.sie.shape_exponent, NoiseShape::Fixed(2.0));
     assert_eq!(config.sie.histogram, HistogramMode::Pooled);
     assert_eq!((config.initial_beta, config.beta_shrink), (None, 0.5));
     assert_eq!(config.max_correspondences, 0);

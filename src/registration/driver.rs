@@ -122,10 +122,10 @@ impl Weighting {
             Weighting::Sie(schedule) => {
                 let models = schedule.estimator().models();
                 ModelSummary {
-                    sigma: models.iter().map(|m| m.shape.sigma).collect(),
+                    sigma: models.iter().map(|m| m.inlier.sigma).collect(),
                     beta: models.iter().map(|m| m.beta).collect(),
                     penalty: models.first().map_or(0.0, |m| m.penalty),
-                    noise_shape: schedule.estimator().mean_shape(),
+                    noise_shape: schedule.estimator().mean_shape_exponent(),
                 }
             }
             Weighting::Baseline { scale, .. } => ModelSummary {

@@ -5,12 +5,8 @@ use nalgebra::Matrix4;
 
 use super::{RegistrationConfig, RegistrationResult};
 use crate::error::Error;
-use crate::geometry::Point;
+use crate::geometry::{Point, first_non_finite, is_finite};
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
-
-pub(crate) fn is_finite(p: &Point) -> bool {
-    p.iter().all(|v| v.is_finite())
-}
 
 /// Which points the caller asked to drop before registering (`skip_non_finite`,
 /// `skip_origin`).
@@ -91,13 +87,33 @@ pub(crate) fn require_points(what: &str, count: usize, minimum: usize) -> Result
 }
 
 pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> {
-    match points.iter().position(|p| !is_finite(p)) {
+    match first_non_finite(points) {
         None => Ok(()),
         Some(i) => Err(Error::NonFinite(format!(
             "{what}[{i}] = {:?} is not finite",
             points[i]
         ))),
     }
+}
+
+/// How far a given normal's length may be from 1.
+pub const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
+
+/// Given normals (point-to-plane's target normals) must be unit vectors, within
+/// [`NORMAL_LENGTH_TOLERANCE`], or exactly 0 0 0 for a point without one (never matched). The one
+/// rule for every entry point (Rust API, C ABI, CLI); non-finite normals are left to the
+/// non-finite rule (refused, or "no normal" with `skip_non_finite`). The error names
+/// `what[index]` and the length found.
+pub fn require_unit_normals(what: &str, normals: &[Point]) -> Result<(), Error> {
+    for (index, normal) in normals.iter().enumerate().filter(|(_, n)| is_finite(n)) {
+        let length = normal.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if length != 0.0 && (length - 1.0).abs() > NORMAL_LENGTH_TOLERANCE {
+            return Err(Error::InvalidArgument(format!(
+                "{what}[{index}] has length {length}; normals must be unit vectors (or 0 0 0 for none)"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The initial guess must be a rigid transform (`geometry::check_rigid`); it is then projected
@@ -128,4 +144,28 @@ pub(crate) fn noise_sigmas(
     let s = cloud_sigmas(scales, CloudRole::Source, source).map_err(Error::Callback)?;
     let t = cloud_sigmas(scales, CloudRole::Target, target).map_err(Error::Callback)?;
     Ok((Some(s), Some(t)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unit_normals_rule() {
+        let unit = [0.0, 0.6, 0.8];
+        assert_eq!(
+            require_unit_normals("n", &[unit, [0.0; 3], [1.0 + 5e-4, 0.0, 0.0]]),
+            Ok(())
+        );
+        // Non-finite normals are the non-finite rule's concern (refused, or "no normal").
+        assert_eq!(
+            require_unit_normals("n", &[[f64::NAN, 0.0, 0.0], [0.0, f64::INFINITY, 0.0]]),
+            Ok(())
+        );
+        let error = require_unit_normals("target normals", &[unit, unit, [0.0, 0.0, 0.5]]).unwrap_err();
+        assert!(
+            matches!(&error, Error::InvalidArgument(m) if m.starts_with("target normals[2] has length 0.5")),
+            "{error}"
+        );
+    }
 }

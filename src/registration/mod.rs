@@ -81,7 +81,9 @@ pub enum StartKind {
 /// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegistrationConfig {
+    /// The robust cost that weights correspondences (SIE by default).
     pub cost: CostFunction,
+    /// SIE's estimator settings (used when `cost` is [`CostFunction::Sie`]).
     pub sie: SieOptions,
     /// ICP only; correspondence registration always uses point-to-point.
     pub metric: Metric,
@@ -212,7 +214,9 @@ pub struct TraceEntry {
     pub annealing: bool,
     /// σ of the first histogram (normalised units); the baseline's scale for other costs.
     pub sigma: f64,
+    /// β of the first histogram at this iteration (normalised units; 0 for baselines).
     pub beta: f64,
+    /// Penalty k of the first histogram at this iteration (0 for baselines).
     pub penalty: f64,
     /// Σ P(I|r) / source points, as `RegistrationResult::inlier_fraction` (unmatched points
     /// count 0), over the source points this iteration matched (all, or the sample), with the
@@ -222,7 +226,9 @@ pub struct TraceEntry {
     pub rmse: f64,
     /// Size of this update: how far it moved the source centroid, and its rotation angle.
     pub translation_change: f64,
+    /// Rotation angle of this update (radians).
     pub rotation_change: f64,
+    /// Correspondences (matched rows) this iteration used.
     pub correspondences: usize,
     /// T_target_source after this update (p_target = T · p_source): what a viewer animates.
     pub transform: Matrix4<f64>,
@@ -247,6 +253,7 @@ pub struct StageTimes {
     pub solve: f64,
     /// Matching every source point at the returned transform for the reported results.
     pub evaluation: f64,
+    /// The whole call, from validation to the returned result.
     pub total: f64,
 }
 
@@ -255,7 +262,10 @@ pub struct StageTimes {
 pub struct RegistrationResult {
     /// T_target_source: p_target = T · p_source.
     pub transform: Matrix4<f64>,
+    /// Why the iteration stopped.
     pub stop_reason: StopReason,
+    /// Whether it stopped because it converged (`stop_reason == StopReason::Converged`);
+    /// whether the pose is supported is `quality.verdict`.
     pub converged: bool,
     /// Number of updates made.
     pub iterations: u32,
@@ -281,6 +291,7 @@ pub struct RegistrationResult {
     pub histograms: Vec<HistogramModel>,
     /// Per-iteration trace when `record_trace` is set.
     pub trace: Vec<TraceEntry>,
+    /// Wall time of the registration's stages (seconds).
     pub times: StageTimes,
     /// Which start decided the result, and what the search found.
     pub search: SearchReport,
@@ -308,6 +319,7 @@ pub enum Verdict {
 /// The evidence behind the verdict.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Quality {
+    /// Good, doubtful or unsupported, from the evidence below.
     pub verdict: Verdict,
     /// Significance of the inlier cluster at the fitted scale (nats, `sie::significance`).
     pub significance: f64,
@@ -341,6 +353,7 @@ pub struct SearchReport {
     pub runner_up_significance: f64,
 }
 
+pub use input::{NORMAL_LENGTH_TOLERANCE, require_unit_normals};
 pub(crate) use pipeline::register_owned_clouds;
 pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
 pub use target::{PrepareOptions, PreparedTarget};

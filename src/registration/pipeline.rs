@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::driver::run;
 use super::input::{Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points};
-use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows};
+use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows, RunKind};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::units::Units;
 use super::{
@@ -361,17 +361,29 @@ impl Evidence {
         }
     }
 
-    /// ICP from a guess the caller vouches for (a warm start): the residuals there are no
-    /// background, the spread of the target is what a wrong pose would show (as for an exact
-    /// guess).
-    fn at_good_guess(problem: &CloudProblem<'_>) -> Self {
+    /// ICP at a pose no other start questioned (a warm start's, or a guess the paper's start
+    /// stayed at): the residuals at the initial guess are inliers there, not the background a
+    /// wrong pose would show. The background is the spread of the residuals at the result
+    /// displaced by `DISPLACED_WIDTHS` fitted σ along each axis in turn: what a pose that wrong
+    /// shows. On unrelated clouds (noise onto noise) that spread is the result's own, and
+    /// nothing stands out. Leaves the problem's rows at the result.
+    fn around(problem: &mut CloudProblem<'_>, result: &RegistrationResult) -> Self {
+        let cols = problem.cols();
         let typical_scale = median(problem.rows().scale.clone());
+        let step = (DISPLACED_WIDTHS * fitted_sigma(result) * typical_scale)
+            .min(DISPLACED_SCENE_FRACTION * problem.target_spread());
+        let mut spread = 0.0;
+        for axis in 0..3 {
+            let mut displaced = result.transform;
+            displaced[(axis, 3)] += step;
+            let norms = squared_norms(problem.evaluate_all(&displaced), cols);
+            spread += norms.iter().sum::<f64>() / (3 * norms.len().max(1)) as f64;
+        }
+        problem.evaluate_all(&result.transform);
         Evidence {
             background: Background {
-                spread_squared: (problem.target_spread() / typical_scale)
-                    .powi(2)
-                    .max(f64::MIN_POSITIVE),
-                dims: problem.cols(),
+                spread_squared: spread.max(f64::MIN_POSITIVE),
+                dims: cols,
             },
             spacing: Some(problem.target_spacing() / typical_scale),
             exact_start: false,
@@ -419,7 +431,7 @@ fn verdict(result: &RegistrationResult) -> Verdict {
     let peak = result
         .histograms
         .iter()
-        .all(|h| h.peak_found || h.shape.sigma == 0.0);
+        .all(|h| h.peak_found || h.inlier.sigma == 0.0);
     let good = peak
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
@@ -678,7 +690,7 @@ fn register_cloud_problem(
     let mut warm_run = None;
     if let Some(warm) = config.warm_start.filter(|_| sie) {
         let mut result = run(problem, init, 1, config, observer.as_deref_mut())?;
-        let evidence = Evidence::at_good_guess(problem);
+        let evidence = Evidence::around(problem, &result);
         result.search.start = StartKind::WarmStart;
         let typical_scale = median(problem.rows().scale.clone());
         let moved = moved_apart(problem.source_points(), &init, &result.transform) / typical_scale;
@@ -773,9 +785,9 @@ fn register_from_starts(
                     rotation_tolerance: LEAD_ROTATION_TOLERANCE,
                     ..config.clone()
                 };
-                problem.set_lead_only(true);
+                problem.set_run_kind(RunKind::Lead);
                 let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
-                problem.set_lead_only(false);
+                problem.set_run_kind(RunKind::Registration);
                 let mut led = led?;
                 if led.stop_reason == StopReason::Cancelled {
                     best.offer(problem, led, StartKind::ScaleFreeLead);
@@ -811,7 +823,7 @@ fn register_from_starts(
         // background a wrong pose would show (judged against them, the right pose of every
         // frame of a 100-frame odometry run from constant-velocity guesses was UNSUPPORTED).
         if stayed {
-            best.evidence = Evidence::at_good_guess(problem);
+            best.evidence = Evidence::around(problem, &result);
         }
         if !best.offer(problem, result, kind) || stayed {
             break;
@@ -832,3 +844,11 @@ fn stayed_near(problem: &dyn Problem, init: &Matrix4<f64>, result: &Registration
 
 /// See [`stayed_near`].
 const STAYED_SIGMAS: f64 = 3.0;
+
+/// See [`Evidence::around`]: ten σ is far outside the inlier peak (99 % of Gaussian inliers lie
+/// within 2.6σ per component) and still a near miss next to a poor initial guess.
+const DISPLACED_WIDTHS: f64 = 10.0;
+/// … and at most this fraction of the target's spread: a shift that moves a good part of the
+/// source off the target would widen any residuals, a fitted σ that large (noise onto noise)
+/// has no room to be told from chance.
+const DISPLACED_SCENE_FRACTION: f64 = 0.05;

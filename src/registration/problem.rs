@@ -236,9 +236,26 @@ const NEVER_QUERIED: u32 = u32::MAX;
 
 /// While β is annealed the fit needs the basin, not the last digit: at most this many source
 /// points are matched then (σ/√5000 is far below any β level, and the histogram still has
-/// 125 bins of 40 samples), all of them afterwards. Measured on the benchmark room against
-/// 20 000: same errors at 10k/100k/1M points, 10k 0.072 → 0.051 s, 100k 0.69 → 0.48 s.
+/// 125 bins of 40 samples), all of them afterwards. Fewer than 20 000 costs no accuracy and
+/// saves about 30 % (see docs/performance.md, "Design measurements behind the code").
 const COARSE_POINTS: usize = 5_000;
+
+/// What the driver's next runs on a [`CloudProblem`] are for.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum RunKind {
+    /// A lead run (its end is only a start for SIE): every update on the coarse subset.
+    Lead,
+    /// A registration: the coarse subset only while β is annealed.
+    Registration,
+}
+
+/// Why the source is matched: for an IRLS step (the sample or its coarse subset, with the
+/// solver's per-row terms) or for the final evaluation (every source point, not solved).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Purpose {
+    Solve,
+    Evaluate,
+}
 
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Which {
@@ -378,9 +395,10 @@ impl<'a> CloudProblem<'a> {
         })
     }
 
-    /// Matches the sample (or its coarse subset, or every source point) at `transform` and
+    /// Matches the sample (or its coarse subset) or every source point at `transform` and
     /// fills the rows.
-    fn match_and_fill(&mut self, transform: &Matrix4<f64>, all: bool) {
+    fn match_and_fill(&mut self, transform: &Matrix4<f64>, purpose: Purpose) {
+        let all = purpose == Purpose::Evaluate;
         let which = if all && self.sample.order.len() < self.source.len() {
             if self.everything.order.is_empty() {
                 let mut everything: Vec<u32> = (0..self.source.len() as u32).collect();
@@ -416,8 +434,7 @@ impl<'a> CloudProblem<'a> {
             }
         }
         self.estimate_missing_normals(&pass);
-        // The final evaluation (`all`) is not solved: no solver terms for it.
-        self.fill_rows(&pass, transform, !all);
+        self.fill_rows(&pass, transform, purpose);
         if !all {
             self.solved_pass = which;
             self.linearised = *transform;
@@ -498,9 +515,9 @@ impl<'a> CloudProblem<'a> {
             });
     }
 
-    /// Rows (in the caller's indices) and, with `solver_terms`, the solver's per-row terms of
+    /// Rows (in the caller's indices) and, for [`Purpose::Solve`], the solver's per-row terms of
     /// the matched pairs.
-    fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, solver_terms: bool) {
+    fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, purpose: Purpose) {
         let target = self.target;
         let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
@@ -532,7 +549,7 @@ impl<'a> CloudProblem<'a> {
             }
             rows.scale
                 .push(noise_scale(&self.source_sigma, &self.target_sigma, s, original_t));
-            if solver_terms {
+            if purpose == Purpose::Solve {
                 self.row_pass.push(k as u32);
             }
         }
@@ -555,9 +572,9 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
 }
 
 impl CloudProblem<'_> {
-    /// Runs until the next call as a lead (see `lead_only`) or not.
-    pub fn set_lead_only(&mut self, lead_only: bool) {
-        self.lead_only = lead_only;
+    /// Runs until the next call as a lead (see `lead_only`) or as a registration.
+    pub fn set_run_kind(&mut self, kind: RunKind) {
+        self.lead_only = kind == RunKind::Lead;
     }
 
     /// RMS distance of the target points from their centroid (over at most 1024 evenly
@@ -623,7 +640,7 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {
-        self.match_and_fill(transform, false);
+        self.match_and_fill(transform, Purpose::Solve);
         &self.rows
     }
 
@@ -668,7 +685,7 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
-        self.match_and_fill(transform, true);
+        self.match_and_fill(transform, Purpose::Evaluate);
         &self.rows
     }
 

@@ -10,10 +10,10 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
-use super::input::{Skip, is_finite, require_finite, require_points};
+use super::input::{Skip, require_finite, require_points, require_unit_normals};
 use super::units::Units;
 use crate::error::Error;
-use crate::geometry::Point;
+use crate::geometry::{Point, is_finite};
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
@@ -121,7 +121,8 @@ impl PreparedTarget {
     /// are estimated from `normal_neighbours` neighbours when a registration first needs them.
     ///
     /// Errors: fewer than 3 (finite) points, a non-finite coordinate or normal (unless
-    /// `skip_non_finite`), a normal count that differs from the point count, a bad
+    /// `skip_non_finite`), a normal count that differs from the point count, a finite normal
+    /// that is neither of unit length nor 0 0 0 ([`require_unit_normals`]), a bad
     /// `normal_neighbours`, more than u32::MAX − 1 points.
     pub fn new(target: &[Point], normals: Option<&[Point]>, options: &PrepareOptions) -> Result<Self, Error> {
         if !(3..=1000).contains(&options.normal_neighbours) {
@@ -138,6 +139,7 @@ impl PreparedTarget {
                     normals.len()
                 )));
             }
+            require_unit_normals("target normals", normals)?;
         }
         let kept = Skip {
             non_finite: options.skip_non_finite,
@@ -215,6 +217,7 @@ impl PreparedTarget {
         self.given_count
     }
 
+    /// Whether the caller gave no point.
     pub fn is_empty(&self) -> bool {
         self.given_count == 0
     }

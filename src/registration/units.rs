@@ -150,8 +150,8 @@ impl Units {
         }
         result.rmse *= self.length;
         for model in &mut result.histograms {
-            model.shape.sigma *= residual;
-            model.shape.mu *= residual;
+            model.inlier.sigma *= residual;
+            model.inlier.mu *= residual;
             model.beta *= residual;
             model.lo *= residual;
             model.hi *= residual;

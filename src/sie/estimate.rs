@@ -46,35 +46,14 @@ pub fn estimate_inliers(
             "residual rows: 0 given, at least 1 needed".into(),
         ));
     }
-    if let Some(i) = residuals.iter().position(|v| !v.is_finite()) {
-        return Err(Error::NonFinite(format!("residuals[{i}] is {}", residuals[i])));
-    }
-    if !(beta.is_finite() && beta >= 0.0) {
-        return Err(Error::InvalidArgument(format!(
-            "beta must be finite and >= 0, got {beta}"
-        )));
-    }
+    check_estimate_values(residuals, cols, row_scales, beta)?;
     let normalised: Vec<f64> = match row_scales {
         None => residuals.to_vec(),
-        Some(scales) => {
-            if scales.len() != rows {
-                return Err(Error::InvalidArgument(format!(
-                    "{} row scales for {rows} rows",
-                    scales.len()
-                )));
-            }
-            if let Some(i) = scales.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-                return Err(Error::InvalidArgument(format!(
-                    "row_scales[{i}] is {}; scales must be finite and > 0",
-                    scales[i]
-                )));
-            }
-            residuals
-                .chunks_exact(cols)
-                .zip(scales)
-                .flat_map(|(row, s)| row.iter().map(move |r| r / s))
-                .collect()
-        }
+        Some(scales) => residuals
+            .chunks_exact(cols)
+            .zip(scales)
+            .flat_map(|(row, s)| row.iter().map(move |r| r / s))
+            .collect(),
     };
     // After every argument check, so that a bad argument is reported as such.
     if rows < MIN_ESTIMATE_ROWS {
@@ -104,8 +83,8 @@ pub fn estimate_inliers(
     let prior = sie.probabilities(&normalised, cols, &mut probabilities);
     let mut models = sie.models().to_vec();
     for model in &mut models {
-        model.shape.sigma *= unit;
-        model.shape.mu *= unit;
+        model.inlier.sigma *= unit;
+        model.inlier.mu *= unit;
         model.beta *= unit;
         model.lo *= unit;
         model.hi *= unit;
@@ -115,6 +94,54 @@ pub fn estimate_inliers(
         models,
         prior,
     })
+}
+
+/// The value rules of [`estimate_inliers`], for every entry point (the C ABI checks them before
+/// it asks for memory): residuals finite (the error names the row and column), one row scale per
+/// row, finite and > 0, and β finite and >= 0. `residuals` holds whole rows of `cols` >= 1.
+pub(crate) fn check_estimate_values(
+    residuals: &[f64],
+    cols: usize,
+    row_scales: Option<&[f64]>,
+    beta: f64,
+) -> Result<(), Error> {
+    require_finite_values("residuals", residuals, cols)?;
+    if let Some(scales) = row_scales {
+        let rows = residuals.len() / cols;
+        if scales.len() != rows {
+            return Err(Error::InvalidArgument(format!(
+                "{} row scales for {rows} rows",
+                scales.len()
+            )));
+        }
+        require_finite_values("row_scales", scales, 1)?;
+        if let Some(i) = scales.iter().position(|&s| s <= 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "row_scales[{i}] is {}; scales must be finite and > 0",
+                scales[i]
+            )));
+        }
+    }
+    if !(beta.is_finite() && beta >= 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "beta must be finite and >= 0, got {beta}"
+        )));
+    }
+    Ok(())
+}
+
+/// The first NaN or infinite value of a row-major matrix of `cols` columns, named with its
+/// flat index, row and column.
+fn require_finite_values(name: &str, values: &[f64], cols: usize) -> Result<(), Error> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(index) => Err(Error::NonFinite(format!(
+            "{name}[{index}] is {} (row index {}, column index {}, from 0)",
+            values[index],
+            index / cols,
+            index % cols
+        ))),
+    }
 }
 
 /// Residual magnitudes in [1/SAFE, SAFE] are fitted as given (results bit for bit as before).

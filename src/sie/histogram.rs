@@ -18,18 +18,37 @@ const MIN_FIT_SAMPLES: usize = 10;
 /// Alternating σ / p rounds when p is estimated.
 const SHAPE_ROUNDS: usize = 6;
 
+/// What one histogram holds: |r| of every column (folded at 0, so μ = 0 and the left edge
+/// mirrors; `HistogramMode::Pooled`) or one column's signed residuals (`PerColumn`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Residuals {
+    Magnitudes,
+    Signed,
+}
+
+/// The width G is evaluated with: σ as fitted, or σ + β as predictions use it (§4.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModelWidth {
+    /// σ: the model fitted to the histogram.
+    Sigma,
+    /// σ + β: the regularised model the probabilities are predicted with.
+    SigmaPlusBeta,
+}
+
 /// A fitted histogram: the data the paper's Fig. 1 (right) draws, and the model that
 /// turns it into probabilities.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HistogramModel {
-    /// Fitted G: α (counts per bin at the peak), μ, σ, p. Units: normalised residual.
-    pub shape: GeneralisedGaussian,
+    /// The fitted inlier density G: α (counts per bin at the peak), μ, σ and the shape
+    /// exponent p. Units: normalised residual.
+    pub inlier: GeneralisedGaussian,
     /// Regulariser β_j added to σ_j when predicting (§4.3).
     pub beta: f64,
     /// Penalty k_j of eq. (fitParams) used for the last fit.
     pub penalty: f64,
     /// Histogram interval [lo, hi); for pooled |r| histograms lo = 0.
     pub lo: f64,
+    /// Upper end of the histogram interval (exclusive).
     pub hi: f64,
     /// Raw counts per bin.
     pub counts: Vec<f64>,
@@ -39,16 +58,18 @@ pub struct HistogramModel {
     pub probability: Vec<f64>,
     /// P(I|H_j): mean probability of the samples inside the range (§4.5, drives adaptive k).
     pub mean_inlier_probability: f64,
+    /// Samples that fell inside [lo, hi).
     pub samples_in_range: usize,
+    /// Samples given to the fit (inside the range or not).
     pub samples_total: usize,
     /// False when no inlier peak could be fitted (no spread, or σ ran to its upper bound).
     pub peak_found: bool,
 }
 
 impl HistogramModel {
-    pub(crate) fn initial(shape: GeneralisedGaussian, penalty: f64) -> Self {
+    pub(crate) fn initial(inlier: GeneralisedGaussian, penalty: f64) -> Self {
         HistogramModel {
-            shape,
+            inlier,
             beta: 0.0,
             penalty,
             lo: 0.0,
@@ -63,21 +84,28 @@ impl HistogramModel {
         }
     }
 
+    /// Number of bins.
     pub fn bins(&self) -> usize {
         self.counts.len()
     }
 
+    /// Width of one bin (normalised residual units).
     pub fn bin_width(&self) -> f64 {
         (self.hi - self.lo) / self.counts.len().max(1) as f64
     }
 
+    /// Centre of bin `bin` (0-based).
     pub fn bin_centre(&self, bin: usize) -> f64 {
         self.lo + (bin as f64 + 0.5) * self.bin_width()
     }
 
-    /// G at x, optionally with σ+β (the prediction model) instead of σ (the fitted one).
-    pub fn model(&self, x: f64, with_beta: bool) -> f64 {
-        self.shape.value(x, if with_beta { self.beta } else { 0.0 })
+    /// G at x, with σ (the fitted model) or σ+β (the prediction model).
+    pub fn model(&self, x: f64, width: ModelWidth) -> f64 {
+        let beta = match width {
+            ModelWidth::Sigma => 0.0,
+            ModelWidth::SigmaPlusBeta => self.beta,
+        };
+        self.inlier.value(x, beta)
     }
 
     /// P(I|x), linearly interpolated between bin centres; 0 outside the histogram range,
@@ -121,25 +149,25 @@ impl HistogramModel {
         self.smoothed[i] * (1.0 - f) + self.smoothed[next] * f
     }
 
-    fn interval(&self, pooled: bool, options: &SieOptions) -> (f64, f64) {
+    fn interval(&self, residuals: Residuals, options: &SieOptions) -> (f64, f64) {
         let w = GeneralisedGaussian::half_width(
-            self.shape.sigma + self.beta,
-            self.shape.p,
+            self.inlier.sigma + self.beta,
+            self.inlier.p,
             options.range_epsilon,
         );
-        if pooled {
+        if residuals == Residuals::Magnitudes {
             (0.0, w)
         } else {
-            (self.shape.mu - w, self.shape.mu + w)
+            (self.inlier.mu - w, self.inlier.mu + w)
         }
     }
 
-    /// Fits the model to the samples (|r| when `pooled`), refitting the range until it is a
-    /// fixed point (§4.5). `samples` yields the same values on every call.
+    /// Fits the model to the samples (|r| for `Residuals::Magnitudes`), refitting the range
+    /// until it is a fixed point (§4.5). `samples` yields the same values on every call.
     pub(crate) fn fit<I: Iterator<Item = f64>>(
         &mut self,
         options: &SieOptions,
-        pooled: bool,
+        residuals: Residuals,
         samples: impl Fn() -> I,
     ) {
         self.samples_total = samples().count();
@@ -149,18 +177,18 @@ impl HistogramModel {
         if low == high {
             // Every sample the same (exact data, or one value repeated): each is as likely an
             // inlier as the cap allows, whatever μ = 0 of a pooled |r| histogram assumes.
-            self.shape.mu = low;
+            self.inlier.mu = low;
             self.fit_without_spread(options);
             return;
         }
-        if self.shape.sigma + self.beta <= 0.0 || (self.shape.sigma + self.beta).is_nan() {
+        if self.inlier.sigma + self.beta <= 0.0 || (self.inlier.sigma + self.beta).is_nan() {
             // The last data had no spread; this data may (e.g. round-off after a perfect fit).
             // Restart from the all-inlier ML estimate (§4.5) instead of a zero-width model.
-            let mu = self.shape.mu;
-            self.shape.sigma = super::root_mean_square(samples().map(|x| x - mu));
+            let mu = self.inlier.mu;
+            self.inlier.sigma = super::root_mean_square(samples().map(|x| x - mu));
         }
         for refit in 0..=MAX_RANGE_REFITS {
-            let (lo, hi) = self.interval(pooled, options);
+            let (lo, hi) = self.interval(residuals, options);
             if !((hi - lo).is_finite() && hi > lo) {
                 self.fit_without_spread(options);
                 return;
@@ -169,9 +197,9 @@ impl HistogramModel {
                 self.fit_too_few(options, lo, hi);
                 return;
             }
-            self.build_histogram(options, pooled, lo, hi, &samples);
-            self.fit_shape(options, pooled);
-            let (new_lo, new_hi) = self.interval(pooled, options);
+            self.build_histogram(options, residuals, lo, hi, &samples);
+            self.fit_shape(options, residuals);
+            let (new_lo, new_hi) = self.interval(residuals, options);
             let overlap = (hi.min(new_hi) - lo.max(new_lo)).max(0.0);
             let mean_width = 0.5 * ((hi - lo) + (new_hi - new_lo));
             if refit == MAX_RANGE_REFITS || overlap / mean_width >= (-RANGE_TOLERANCE).exp() {
@@ -184,9 +212,9 @@ impl HistogramModel {
     /// All samples equal (σ+β = 0): every sample sits exactly at the peak, so each is as likely
     /// an inlier as the cap allows (e.g. a cloud registered onto itself). No peak is "found".
     fn fit_without_spread(&mut self, options: &SieOptions) {
-        self.shape.sigma = 0.0;
-        self.lo = self.shape.mu;
-        self.hi = self.shape.mu;
+        self.inlier.sigma = 0.0;
+        self.lo = self.inlier.mu;
+        self.hi = self.inlier.mu;
         self.set_flat(options, self.samples_total);
     }
 
@@ -207,14 +235,14 @@ impl HistogramModel {
         self.probability.push(options.max_probability);
         self.samples_in_range = count;
         self.mean_inlier_probability = options.max_probability;
-        self.shape.alpha = count as f64;
+        self.inlier.alpha = count as f64;
         self.peak_found = false;
     }
 
     fn build_histogram<I: Iterator<Item = f64>>(
         &mut self,
         options: &SieOptions,
-        pooled: bool,
+        residuals: Residuals,
         lo: f64,
         hi: f64,
         samples: &impl Fn() -> I,
@@ -243,86 +271,90 @@ impl HistogramModel {
         // as the paper's sample-variance argument intends. At the mirrored edge of a |r|
         // histogram (where its peak is) the kernel sees one side only: ask for twice as many.
         let per_bin = inside.max(1) as f64 / bins as f64;
-        let one_sided = if pooled { 2.0 } else { 1.0 };
+        let one_sided = if residuals == Residuals::Magnitudes {
+            2.0
+        } else {
+            1.0
+        };
         let sparse = one_sided * options.data_per_bin / ((2.0 * std::f64::consts::PI).sqrt() * per_bin);
         // A kernel wider than a sixth of the histogram would flatten any peak: cap it.
         let std_bins = (options.smoothing * bins as f64 * capped)
             .max(sparse)
             .min(bins as f64 / 6.0);
-        smooth(&self.counts, &mut self.smoothed, std_bins, pooled);
+        smooth(&self.counts, &mut self.smoothed, std_bins, residuals);
     }
 
     /// μ and α from the peak, then σ (and p) by eq. (fitParams).
-    fn fit_shape(&mut self, options: &SieOptions, pooled: bool) {
+    fn fit_shape(&mut self, options: &SieOptions, residuals: Residuals) {
         let bins = self.smoothed.len();
         let width = self.bin_width();
         let centres: Vec<f64> = (0..bins).map(|b| self.bin_centre(b)).collect();
-        if pooled {
+        if residuals == Residuals::Magnitudes {
             // |r| histograms are mirrored at 0, so the peak of the residual density is at 0.
-            self.shape.mu = 0.0;
-            self.shape.alpha = self.smoothed[0];
+            self.inlier.mu = 0.0;
+            self.inlier.alpha = self.smoothed[0];
         } else {
             let (mu, alpha) = refined_peak(&self.smoothed);
-            self.shape.mu = self.lo + (mu + 0.5) * width;
-            self.shape.alpha = alpha;
+            self.inlier.mu = self.lo + (mu + 0.5) * width;
+            self.inlier.alpha = alpha;
         }
         let total: f64 = self.smoothed.iter().sum();
-        if !(self.shape.alpha.is_finite() && self.shape.alpha > 0.0) || total <= 0.0 {
+        if !(self.inlier.alpha.is_finite() && self.inlier.alpha > 0.0) || total <= 0.0 {
             self.peak_found = false;
             return;
         }
         let moment = (centres
             .iter()
             .zip(&self.smoothed)
-            .map(|(c, h)| (c - self.shape.mu).powi(2) * h)
+            .map(|(c, h)| (c - self.inlier.mu).powi(2) * h)
             .sum::<f64>()
             / total)
             .sqrt();
         let sigma_lo = (0.05 * width).max(options.min_sigma).max(f64::MIN_POSITIVE);
         let sigma_hi = (2.0 * moment).max(4.0 * sigma_lo);
         let k = self.penalty;
-        let fit_sigma = |shape: GeneralisedGaussian| {
+        let fit_sigma = |inlier: GeneralisedGaussian| {
             minimise_1d(sigma_lo, sigma_hi, |s| {
                 sigma_cost(
-                    &GeneralisedGaussian { sigma: s, ..shape },
+                    &GeneralisedGaussian { sigma: s, ..inlier },
                     &centres,
                     &self.smoothed,
                     k,
                 )
             })
         };
-        match options.shape {
+        match options.shape_exponent {
             NoiseShape::Fixed(p) => {
-                self.shape.p = p;
-                self.shape.sigma = fit_sigma(self.shape);
+                self.inlier.p = p;
+                self.inlier.sigma = fit_sigma(self.inlier);
             }
             NoiseShape::Estimated => {
                 for _ in 0..SHAPE_ROUNDS {
-                    self.shape.sigma = fit_sigma(self.shape);
-                    let before = self.shape.p;
-                    let shape = self.shape;
-                    self.shape.p = minimise_1d(SHAPE_RANGE.0, SHAPE_RANGE.1, |p| {
-                        shape_cost(&GeneralisedGaussian { p, ..shape }, &centres, &self.smoothed, k)
+                    self.inlier.sigma = fit_sigma(self.inlier);
+                    let before = self.inlier.p;
+                    let inlier = self.inlier;
+                    self.inlier.p = minimise_1d(SHAPE_RANGE.0, SHAPE_RANGE.1, |p| {
+                        shape_cost(&GeneralisedGaussian { p, ..inlier }, &centres, &self.smoothed, k)
                     });
-                    if (self.shape.p - before).abs() < 1e-3 {
+                    if (self.inlier.p - before).abs() < 1e-3 {
                         break;
                     }
                 }
-                self.shape.sigma = fit_sigma(self.shape);
+                self.inlier.sigma = fit_sigma(self.inlier);
             }
         }
-        self.shape.sigma = self.shape.sigma.max(options.min_sigma);
+        self.inlier.sigma = self.inlier.sigma.max(options.min_sigma);
         // An inlier peak falls off like G: at μ ± 1.5σ a Gaussian is down to 0.32α (plus the
         // outlier background), while a flat histogram (only outliers) is still near α there.
         // σ at its upper bracket means the fit found no bounded peak at all.
-        let right = self.smoothed_at(self.shape.mu + SHOULDER * self.shape.sigma);
-        let shoulder = if pooled {
+        let right = self.smoothed_at(self.inlier.mu + SHOULDER * self.inlier.sigma);
+        let shoulder = if residuals == Residuals::Magnitudes {
             right
         } else {
-            0.5 * (right + self.smoothed_at(self.shape.mu - SHOULDER * self.shape.sigma))
+            0.5 * (right + self.smoothed_at(self.inlier.mu - SHOULDER * self.inlier.sigma))
         };
-        self.peak_found = self.shape.sigma < 0.99 * sigma_hi
-            && shoulder <= MAX_SHOULDER * self.shape.alpha
+        self.peak_found = self.inlier.sigma < 0.99 * sigma_hi
+            && shoulder <= MAX_SHOULDER * self.inlier.alpha
             && self.samples_in_range >= MIN_FIT_SAMPLES;
     }
 
@@ -335,7 +367,7 @@ impl HistogramModel {
         let mut table = std::mem::take(&mut self.probability);
         table.clear();
         table.extend((0..bins).map(|b| {
-            let g = self.model(self.bin_centre(b), true);
+            let g = self.model(self.bin_centre(b), ModelWidth::SigmaPlusBeta);
             (g / self.smoothed[b].max(floor)).min(options.max_probability)
         }));
         self.probability = table;
@@ -373,7 +405,7 @@ fn refined_peak(h: &[f64]) -> (f64, f64) {
 /// Gaussian smoothing with std `std_bins` (in bins), truncated where the kernel weight drops
 /// below 1e-3. The left edge of a |r| histogram is mirrored (|r| is folded at 0); other edges
 /// renormalise by the kernel mass that falls inside the histogram.
-fn smooth(input: &[f64], output: &mut Vec<f64>, std_bins: f64, mirror_left: bool) {
+fn smooth(input: &[f64], output: &mut Vec<f64>, std_bins: f64, residuals: Residuals) {
     let n = input.len();
     output.clear();
     if std_bins < 1e-3 {
@@ -392,7 +424,11 @@ fn smooth(input: &[f64], output: &mut Vec<f64>, std_bins: f64, mirror_left: bool
         for d in -r..=r {
             let j = i as isize + d;
             // bin -1 mirrors bin 0, -2 mirrors 1, …
-            let source = if j < 0 && mirror_left { -j - 1 } else { j };
+            let source = if j < 0 && residuals == Residuals::Magnitudes {
+                -j - 1
+            } else {
+                j
+            };
             if (0..n as isize).contains(&source) {
                 let w = kernel[d.unsigned_abs()];
                 sum += w * input[source as usize];
@@ -411,9 +447,9 @@ mod tests {
     fn smoothing_preserves_a_flat_histogram() {
         let input = vec![5.0; 100];
         let mut out = Vec::new();
-        smooth(&input, &mut out, 3.0, true);
+        smooth(&input, &mut out, 3.0, Residuals::Magnitudes);
         assert!(out.iter().all(|v| (v - 5.0).abs() < 1e-12));
-        smooth(&input, &mut out, 3.0, false);
+        smooth(&input, &mut out, 3.0, Residuals::Signed);
         assert!(out.iter().all(|v| (v - 5.0).abs() < 1e-12));
     }
 
@@ -422,7 +458,7 @@ mod tests {
         let mut input = vec![0.0; 101];
         input[50] = 1.0;
         let mut out = Vec::new();
-        smooth(&input, &mut out, 2.0, false);
+        smooth(&input, &mut out, 2.0, Residuals::Signed);
         assert!((out[48] - out[52]).abs() < 1e-15);
         assert!(out[50] > out[49] && out[49] > out[48]);
     }

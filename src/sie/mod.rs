@@ -13,13 +13,17 @@
 
 pub mod estimate;
 mod histogram;
-pub mod hypotheses;
-pub mod schedule;
+// The registration's machinery (starts, hypotheses, the β schedule): used by `registration`
+// only, not part of the public API. `significance` stays public for its reference search
+// `most_significant`, which only the tests call.
+pub(crate) mod hypotheses;
+pub(crate) mod schedule;
 pub mod shape;
 pub mod significance;
-pub mod starts;
+pub(crate) mod starts;
 
-pub use histogram::HistogramModel;
+use histogram::Residuals;
+pub use histogram::{HistogramModel, ModelWidth};
 use shape::GeneralisedGaussian;
 
 /// Which residuals share a histogram.
@@ -55,11 +59,15 @@ pub enum GammaRule {
 /// experiment configuration (see docs in README "SIE parameters").
 #[derive(Clone, Debug, PartialEq)]
 pub struct SieOptions {
+    /// Which residuals share a histogram (pooled |r| or one per column).
     pub histogram: HistogramMode,
-    pub shape: NoiseShape,
+    /// The inlier density's shape exponent p: fixed, or estimated with σ.
+    pub shape_exponent: NoiseShape,
     /// Samples per bin: bins = round(n_in_range / data_per_bin) (§4.5, 40 in the experiments).
     pub data_per_bin: f64,
+    /// Fewest histogram bins, however few samples are in range.
     pub min_bins: usize,
+    /// Most histogram bins, however many samples are in range.
     pub max_bins: usize,
     /// Smoothing kernel standard deviation as a fraction of the bin count (0.02 → 2 % of the
     /// histogram width, §4.5 "standard deviation proportional to the width").
@@ -73,6 +81,7 @@ pub struct SieOptions {
     /// Adapted k = P(I|H)^-exponent, clamped to [1, initial_penalty] (§4.5 uses 3; the authors'
     /// final code uses 1).
     pub penalty_exponent: f64,
+    /// How P(I) in γ is obtained (§4.2).
     pub gamma: GammaRule,
     /// Lower bound on σ in normalised units (0 = none).
     pub min_sigma: f64,
@@ -82,7 +91,7 @@ impl Default for SieOptions {
     fn default() -> Self {
         SieOptions {
             histogram: HistogramMode::Pooled,
-            shape: NoiseShape::Fixed(2.0),
+            shape_exponent: NoiseShape::Fixed(2.0),
             data_per_bin: 40.0,
             min_bins: 50,
             max_bins: 1000,
@@ -141,7 +150,7 @@ impl SieOptions {
                 self.penalty_exponent
             ));
         }
-        if let NoiseShape::Fixed(p) = self.shape {
+        if let NoiseShape::Fixed(p) = self.shape_exponent {
             if !(p.is_finite() && (0.1..=10.0).contains(&p)) {
                 return Err(format!("noise shape p must be in [0.1, 10], got {p}"));
             }
@@ -166,6 +175,7 @@ pub struct SieEstimator {
 }
 
 impl SieEstimator {
+    /// An estimator with these settings and no fitted histogram yet.
     pub fn new(options: SieOptions) -> Self {
         SieEstimator {
             options,
@@ -183,6 +193,7 @@ impl SieEstimator {
         }
     }
 
+    /// The settings in use (with the σ floor raised by `set_resolution`).
     pub fn options(&self) -> &SieOptions {
         &self.options
     }
@@ -211,7 +222,7 @@ impl SieEstimator {
         if self.models.len() == count {
             return;
         }
-        let p = match self.options.shape {
+        let p = match self.options.shape_exponent {
             NoiseShape::Fixed(p) => p,
             NoiseShape::Estimated => 2.0,
         };
@@ -261,12 +272,12 @@ impl SieEstimator {
     /// Sets every histogram's model to σ, k and (when the shape is estimated) p: a warm start
     /// from an earlier fit. `prepare` must have created the models.
     pub fn set_model(&mut self, sigma: f64, penalty: f64, shape: f64) {
-        let estimated = self.options.shape == NoiseShape::Estimated;
+        let estimated = self.options.shape_exponent == NoiseShape::Estimated;
         for m in &mut self.models {
-            m.shape.sigma = sigma;
+            m.inlier.sigma = sigma;
             m.penalty = penalty;
             if estimated {
-                m.shape.p = shape;
+                m.inlier.p = shape;
             }
         }
     }
@@ -285,7 +296,7 @@ impl SieEstimator {
         let floor = self.options.min_sigma;
         self.models
             .iter()
-            .all(|m| m.beta <= ratio * m.shape.sigma.max(floor))
+            .all(|m| m.beta <= ratio * m.inlier.sigma.max(floor))
     }
 
     /// Creates the models for this residual layout without fitting (so β can be set first).
@@ -302,7 +313,7 @@ impl SieEstimator {
             HistogramMode::Pooled => {
                 self.active = active_columns(residuals, cols);
                 let active = &self.active;
-                self.models[0].fit(options, true, || {
+                self.models[0].fit(options, Residuals::Magnitudes, || {
                     residuals
                         .iter()
                         .enumerate()
@@ -312,7 +323,9 @@ impl SieEstimator {
             }
             HistogramMode::PerColumn => {
                 for (j, model) in self.models.iter_mut().enumerate() {
-                    model.fit(options, false, || residuals.iter().skip(j).step_by(cols).copied());
+                    model.fit(options, Residuals::Signed, || {
+                        residuals.iter().skip(j).step_by(cols).copied()
+                    });
                 }
             }
         }
@@ -393,18 +406,18 @@ impl SieEstimator {
 
     /// Scale σ_j + β_j of each histogram (normalised units).
     pub fn effective_scales(&self) -> Vec<f64> {
-        self.models.iter().map(|m| m.shape.sigma + m.beta).collect()
+        self.models.iter().map(|m| m.inlier.sigma + m.beta).collect()
     }
 
     /// The mean shape exponent p over histograms (2 unless estimated).
-    pub fn mean_shape(&self) -> f64 {
+    pub fn mean_shape_exponent(&self) -> f64 {
         if self.models.is_empty() {
-            return match self.options.shape {
+            return match self.options.shape_exponent {
                 NoiseShape::Fixed(p) => p,
                 NoiseShape::Estimated => 2.0,
             };
         }
-        self.models.iter().map(|m| m.shape.p).sum::<f64>() / self.models.len() as f64
+        self.models.iter().map(|m| m.inlier.p).sum::<f64>() / self.models.len() as f64
     }
 }
 
@@ -491,7 +504,7 @@ mod tests {
             sie.fit(&r, 1);
             sie.adapt_penalty();
             sie.fit(&r, 1);
-            let sigma = sie.models()[0].shape.sigma;
+            let sigma = sie.models()[0].inlier.sigma;
             assert!((sigma - 0.02).abs() < 0.002, "{mode:?}: sigma {sigma}");
             let mut p = vec![0.0; r.len()];
             sie.probabilities(&r, 1, &mut p);
@@ -514,15 +527,15 @@ mod tests {
             })
             .collect();
         let mut sie = SieEstimator::new(SieOptions {
-            shape: NoiseShape::Estimated,
+            shape_exponent: NoiseShape::Estimated,
             ..SieOptions::default()
         });
         for _ in 0..3 {
             sie.fit(&r, 1);
         }
         let m = &sie.models()[0];
-        assert!((m.shape.p - 1.0).abs() < 0.2, "p {}", m.shape.p);
-        assert!((m.shape.sigma - b).abs() < 0.2 * b, "sigma {}", m.shape.sigma);
+        assert!((m.inlier.p - 1.0).abs() < 0.2, "p {}", m.inlier.p);
+        assert!((m.inlier.sigma - b).abs() < 0.2 * b, "sigma {}", m.inlier.sigma);
     }
 
     #[test]

@@ -243,7 +243,7 @@ impl Schedule {
         estimator.probabilities(normalised, cols, probabilities);
         self.inlier_mass = probabilities.iter().sum();
         let estimator = &self.estimator;
-        let p = estimator.mean_shape();
+        let p = estimator.mean_shape_exponent();
         let delta = (SHAPE_DELTA * self.width()).max(1e-12);
         for (i, (w, (&probability, &scale))) in weights
             .iter_mut()
@@ -284,7 +284,7 @@ impl Schedule {
     pub fn precision(&self) -> f64 {
         let models = self.estimator.models();
         let sigma =
-            (models.iter().map(|m| m.shape.sigma.powi(2)).sum::<f64>() / models.len().max(1) as f64).sqrt();
+            (models.iter().map(|m| m.inlier.sigma.powi(2)).sum::<f64>() / models.len().max(1) as f64).sqrt();
         sigma * (RIGID_DOF / self.inlier_mass.max(1.0)).sqrt()
     }
 

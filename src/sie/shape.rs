@@ -13,9 +13,13 @@
 /// Un-normalised generalised Gaussian α·exp(-(|x-μ|/σ)^p / p).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GeneralisedGaussian {
+    /// Height at the peak μ (counts per bin).
     pub alpha: f64,
+    /// Centre (0 for pooled |r| histograms).
     pub mu: f64,
+    /// Width σ (> 0), in the residuals' units.
     pub sigma: f64,
+    /// Shape exponent p (2 Gaussian, 1 Laplacian; in [0.1, 10]).
     pub p: f64,
 }
 

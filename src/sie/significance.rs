@@ -145,6 +145,7 @@ pub struct BinnedSignificance {
 }
 
 impl BinnedSignificance {
+    /// Empty counts against this background.
     pub fn new(background: Background) -> Self {
         BinnedSignificance {
             background,
