@@ -5,7 +5,8 @@ of each library's time to sie's at the same size and thread count, then sie's st
     python3 bench/report.py FILE.csv [FILE.csv ...]
 
 sie rows come from bench_icp (stage times and the floor, one NN pass + one 6x6 solve, in `note`;
-a second row per size registers onto a target prepared beforehand); compare_pcl also writes sie rows, which
+a second row per size runs the paper's single start, a third registers onto a target prepared
+beforehand); compare_pcl also writes sie rows, which
 are dropped here in favour of bench_icp's so every sie number comes from one program.
 """
 import csv
@@ -62,7 +63,7 @@ def main(paths):
     print()
     print("sie's stages (seconds; the SIE fit is `weighting`: histogram, σ, k, P(I|r) and weights):")
     print()
-    print("| points | target | threads | total | kd-tree | normals | matching | SIE fit | solve | final evaluation "
+    print("| points | sie run | threads | total | kd-tree | normals | matching | SIE fit | solve | final evaluation "
           "| iterations | SIE fit / iteration | iteration (ms) | floor (ms) | iteration / floor |")
     print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
@@ -73,7 +74,7 @@ def main(paths):
         per_iteration = loop / max(int(r["iterations"]), 1)
         floor = s.get("floor")
         floor_cells = (f"| {1e3 * floor:.2f} | {per_iteration / floor:.1f} " if floor else "| – | – ")
-        target = "prepared" if "prepared" in r["method"] else "built"
+        target = r["method"]
         print(f"| {r['points']} | {target} | {r['threads']} | {fmt_seconds(float(r['seconds']))} | {s['index']:.3f} "
               f"| {s['normals']:.3f} | {s['matching']:.3f} | {s['weighting']:.3f} | {s['solve']:.3f} "
               f"| {s['evaluation']:.3f} | {r['iterations']} | {100 * s['weighting'] / loop:.0f} % "

@@ -354,6 +354,23 @@ pub struct SearchReport {
 }
 
 pub use input::{NORMAL_LENGTH_TOLERANCE, require_unit_normals};
+impl WarmStart {
+    /// The noise model a registration ended with, to start the next one from (`None` for a
+    /// baseline cost or a result without a usable σ).
+    pub fn of(result: &RegistrationResult) -> Option<WarmStart> {
+        if result.beta.is_empty() {
+            return None;
+        }
+        Self::from_fit(
+            &result.sigma,
+            result.penalty,
+            result.noise_shape,
+            result.inlier_fraction,
+        )
+        .ok()
+    }
+}
+
 pub(crate) use pipeline::register_owned_clouds;
 pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
 pub use target::{PrepareOptions, PreparedTarget};

@@ -40,21 +40,6 @@ pub struct WarmStart {
 }
 
 impl WarmStart {
-    /// The noise model a registration ended with, to start the next one from (`None` for a
-    /// baseline cost or a result without a usable σ).
-    pub fn of(result: &crate::registration::RegistrationResult) -> Option<WarmStart> {
-        if result.beta.is_empty() {
-            return None;
-        }
-        Self::from_fit(
-            &result.sigma,
-            result.penalty,
-            result.noise_shape,
-            result.inlier_fraction,
-        )
-        .ok()
-    }
-
     /// A noise model from its numbers (σ per histogram, each finite and > 0); the message
     /// names the first bad value.
     pub fn from_fit(
