@@ -690,11 +690,11 @@ fn register_cloud_problem(
     let mut warm_run = None;
     if let Some(warm) = config.warm_start.filter(|_| sie) {
         let mut result = run(problem, init, 1, config, observer.as_deref_mut())?;
-        let evidence = Evidence::around(problem, &result);
         result.search.start = StartKind::WarmStart;
         let typical_scale = median(problem.rows().scale.clone());
         let moved = moved_apart(problem.source_points(), &init, &result.transform) / typical_scale;
         if result.stop_reason == StopReason::Cancelled || warm_model_held(&warm, &result, moved) {
+            let evidence = Evidence::around(problem, &result);
             judged_alone(&evidence, problem, &mut result);
             return Ok(result);
         }
