@@ -128,7 +128,7 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *   several starts instead (the updates of every start are then reported in order, and the
  *   iteration cap holds per start).
  * - Sequences (odometry, scan-to-map): after each align(), context().set_warm_start(summary())
- *   starts the next one from this frame's noise model (about a third of the updates; sie falls
+ *   starts the next one from this frame's noise model (~60 % of the updates; sie falls
  *   back to the full schedule by itself when the guess was bad).
  * - setMaximumIterations(n): caps sie's updates at n. The default is sie's 200, not PCL's 10:
  *   SIE anneals its noise model over typically 30-60 updates.
