@@ -717,8 +717,13 @@ fn register_cloud_problem(
     let mut result = if sie && config.starts == Starts::Automatic {
         register_from_starts(problem, init, first_iteration, &cold, observer)?
     } else {
-        let evidence = Evidence::of_clouds(problem, &init);
+        let mut evidence = Evidence::of_clouds(problem, &init);
         let mut result = run(problem, init, first_iteration, &cold, observer)?;
+        // As for the first of several starts (`register_from_starts`); a baseline has no σ.
+        if config.cost == CostFunction::Sie {
+            let around = Evidence::around(problem, &result);
+            evidence.widen(&around);
+        }
         judged_alone(&evidence, problem, &mut result);
         result
     };
