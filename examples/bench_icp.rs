@@ -126,21 +126,18 @@ mod run {
                     ..RegistrationConfig::default()
                 };
                 let floor = floor_per_iteration(&source, &target, threads);
-                let mut runs: Vec<RegistrationResult> = (0..repeats)
-                    .map(|_| {
+                // `repeats` runs of one registration, sorted by total time, as one row.
+                let row = |method: &str, register: &dyn Fn() -> RegistrationResult, note: &str| {
+                    let mut runs: Vec<RegistrationResult> = (0..repeats).map(|_| register()).collect();
+                    runs.sort_by(|a, b| a.times.total.total_cmp(&b.times.total));
+                    print_row(method, &runs, &truth, source.len(), threads, repeats, floor, note);
+                };
+                row(
+                    "point-to-plane",
+                    &|| {
                         register_clouds(&source, &target, None, None, &config, Hooks::default())
                             .expect("registration")
-                    })
-                    .collect();
-                runs.sort_by(|a, b| a.times.total.total_cmp(&b.times.total));
-                print_row(
-                    "point-to-plane",
-                    &runs,
-                    &truth,
-                    source.len(),
-                    threads,
-                    repeats,
-                    floor,
+                    },
                     "",
                 );
                 // The paper's single run from the guess (`Starts::InitialGuess`): what the default's
@@ -149,21 +146,12 @@ mod run {
                     starts: sie::Starts::InitialGuess,
                     ..config.clone()
                 };
-                let mut runs: Vec<RegistrationResult> = (0..repeats)
-                    .map(|_| {
+                row(
+                    "point-to-plane one start",
+                    &|| {
                         register_clouds(&source, &target, None, None, &one_start, Hooks::default())
                             .expect("registration")
-                    })
-                    .collect();
-                runs.sort_by(|a, b| a.times.total.total_cmp(&b.times.total));
-                print_row(
-                    "point-to-plane one start",
-                    &runs,
-                    &truth,
-                    source.len(),
-                    threads,
-                    repeats,
-                    floor,
+                    },
                     "",
                 );
                 // The same registration onto a target prepared (kd-tree and every normal) before
@@ -175,23 +163,13 @@ mod run {
                 // Every normal up front (a prepared target otherwise estimates the ones its first
                 // registration reaches, inside that call: the `normals` of the row above).
                 let all_normals = prepared.estimate_all_normals(threads).expect("normals");
-                let prepare_note = format!(" prepare={index_seconds:.4} all_normals={all_normals:.4}");
-                let mut runs: Vec<RegistrationResult> = (0..repeats)
-                    .map(|_| {
+                row(
+                    "point-to-plane prepared target",
+                    &|| {
                         register_clouds_to(&source, &prepared, None, &config, Hooks::default())
                             .expect("registration")
-                    })
-                    .collect();
-                runs.sort_by(|a, b| a.times.total.total_cmp(&b.times.total));
-                print_row(
-                    "point-to-plane prepared target",
-                    &runs,
-                    &truth,
-                    source.len(),
-                    threads,
-                    repeats,
-                    floor,
-                    &prepare_note,
+                    },
+                    &format!(" prepare={index_seconds:.4} all_normals={all_normals:.4}"),
                 );
             }
         }

@@ -1413,7 +1413,8 @@ fn warm_start_is_read_from_a_summary_and_checked() {
     // SAFETY: live context, packed arrays of 3000 points, outputs valid.
     unsafe {
         assert_eq!(sie_context_set_threads(ctx.0, 1), sie_status::Ok);
-        let register = |transform: &mut [f64; 16]| {
+        // `guess` NULL: the identity.
+        let register = |guess: *const f64, transform: &mut [f64; 16]| {
             sie_context_register(
                 ctx.0,
                 source.as_ptr(),
@@ -1422,11 +1423,11 @@ fn warm_start_is_read_from_a_summary_and_checked() {
                 target.as_ptr(),
                 3_000,
                 0,
-                null(),
+                guess,
                 transform.as_mut_ptr(),
             )
         };
-        assert_eq!(register(&mut transform), sie_status::Ok);
+        assert_eq!(register(null(), &mut transform), sie_status::Ok);
         assert_eq!(sie_context_get_summary(ctx.0, &mut summary), sie_status::Ok);
         assert_eq!(sie_context_set_warm_start(ctx.0, &summary), sie_status::Ok);
         let warm = ctx.config().warm_start.expect("stored");
@@ -1437,20 +1438,7 @@ fn warm_start_is_read_from_a_summary_and_checked() {
         );
         // The same pair from its own answer: the warm run is kept.
         let guess = transform;
-        assert_eq!(
-            sie_context_register(
-                ctx.0,
-                source.as_ptr(),
-                3_000,
-                0,
-                target.as_ptr(),
-                3_000,
-                0,
-                guess.as_ptr(),
-                transform.as_mut_ptr()
-            ),
-            sie_status::Ok
-        );
+        assert_eq!(register(guess.as_ptr(), &mut transform), sie_status::Ok);
         let mut warm_summary = sie_summary::default();
         assert_eq!(sie_context_get_summary(ctx.0, &mut warm_summary), sie_status::Ok);
         assert_eq!(warm_summary.start, sie_start_kind::WarmStart as u32);

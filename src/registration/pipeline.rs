@@ -390,12 +390,11 @@ impl Evidence {
         }
     }
 
-    /// Takes the wider background of the two.
-    fn widen(&mut self, other: &Evidence) {
-        self.background.spread_squared = self
-            .background
-            .spread_squared
-            .max(other.background.spread_squared);
+    /// Takes the wider of this background and `around`'s at `result` (a guess near the right
+    /// pose has mostly inliers at it). Leaves the problem's rows at the result.
+    fn widen_around(&mut self, problem: &mut CloudProblem<'_>, result: &RegistrationResult) {
+        let around = Evidence::around(problem, result).background.spread_squared;
+        self.background.spread_squared = self.background.spread_squared.max(around);
     }
 
     /// Fills `result.quality` but for the verdict and the margin (which need every start) and
@@ -721,8 +720,7 @@ fn register_cloud_problem(
         let mut result = run(problem, init, first_iteration, &cold, observer)?;
         // As for the first of several starts (`register_from_starts`); a baseline has no σ.
         if config.cost == CostFunction::Sie {
-            let around = Evidence::around(problem, &result);
-            evidence.widen(&around);
+            evidence.widen_around(problem, &result);
         }
         judged_alone(&evidence, problem, &mut result);
         result
@@ -838,8 +836,7 @@ fn register_from_starts(
         // start's result shifted by 10σ shows one; the wider of the two backgrounds judges
         // every start.
         if best.starts_run == 0 {
-            let around = Evidence::around(problem, &result);
-            best.evidence.widen(&around);
+            best.evidence.widen_around(problem, &result);
         }
         if !best.offer(problem, result, kind) || stayed {
             break;
