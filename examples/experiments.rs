@@ -14,6 +14,7 @@
 //!   --doc FILE      document whose generated sections are filled in (default docs/results.md;
 //!                   "-" leaves it alone)
 //!   --data DIR      real scans (default $SIE_DATA_DIR or ../shared/data)
+//!   --method KEY    scans: run only this method (its CSV key, e.g. sie), to check a change
 //! ```
 //! Every random draw is seeded, so a rerun gives the same numbers (timings aside).
 #[path = "experiments/beyond.rs"]
@@ -51,6 +52,8 @@ struct Options {
     figures: PathBuf,
     doc: Option<PathBuf>,
     data: PathBuf,
+    /// Scans: only the method with this CSV key.
+    method: Option<String>,
     /// The command line, recorded in the document.
     command: String,
 }
@@ -65,6 +68,7 @@ fn parse_options() -> Result<Options, String> {
         figures: PathBuf::from("docs/figures"),
         doc: Some(PathBuf::from("docs/results.md")),
         data: std::env::var_os("SIE_DATA_DIR").map_or_else(|| PathBuf::from("../shared/data"), PathBuf::from),
+        method: None,
         command: format!(
             "cargo run --release --example experiments --{}",
             args.iter().map(|a| format!(" {a}")).collect::<String>()
@@ -91,6 +95,7 @@ fn parse_options() -> Result<Options, String> {
                 options.doc = (v != "-").then(|| v.into());
             }
             "--data" => options.data = value("--data")?.into(),
+            "--method" => options.method = Some(value("--method")?),
             "grid" | "beyond" | "appendix" | "scans" | "figures" | "variants" => options.parts.push(arg),
             "all" => options
                 .parts
@@ -624,8 +629,10 @@ fn scan_table(options: &Options) -> Result<String, String> {
     for (c, case) in cases.iter().enumerate() {
         let case_starts = case.starts(c as u64);
         for (s, _) in case_starts.iter().enumerate() {
-            for m in 0..case.methods().len() {
-                jobs.push((c, s, m));
+            for (m, method) in case.methods().iter().enumerate() {
+                if options.method.as_deref().is_none_or(|key| key == method.key) {
+                    jobs.push((c, s, m));
+                }
             }
         }
         starts.push(case_starts);

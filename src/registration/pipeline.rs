@@ -335,17 +335,23 @@ struct Evidence {
 }
 
 impl Evidence {
-    /// ICP: the background is the spread of the residuals at the initial guess (every source
-    /// point), the spacing the median distance between neighbouring target points.
+    /// ICP: the background is the spread of the residuals at the initial guess (over the
+    /// evidence subset, see [`CloudProblem::evaluate_evidence`]), the spacing the median
+    /// distance between neighbouring target points.
     fn of_clouds(problem: &mut CloudProblem<'_>, init: &Matrix4<f64>) -> Self {
         let cols = problem.cols();
-        let initial = squared_norms(problem.evaluate_all(init), cols);
-        let spread = initial.iter().sum::<f64>() / initial.len().max(1) as f64;
-        let typical_scale = median(problem.rows().scale.clone());
-        let resolution = super::driver::resolution(problem.coordinate_magnitude(), &problem.rows().scale);
+        let magnitude = problem.coordinate_magnitude();
         // Residuals at the rounding level already: the guess is exact, and the spread of the
         // target itself is the background a wrong pose would show.
-        let exact_start = spread <= resolution * resolution;
+        let exact =
+            |rows: &Rows, spread: f64| spread <= super::driver::resolution(magnitude, &rows.scale).powi(2);
+        let spread = mean_squared_norm(problem.evaluate_evidence(init), cols);
+        let typical_scale = median(problem.rows().scale.clone());
+        // The subset says so only when every point does.
+        let exact_start = exact(problem.rows(), spread) && {
+            let rows = problem.evaluate_all(init);
+            exact(rows, mean_squared_norm(rows, cols))
+        };
         let spread = if exact_start {
             (problem.target_spread() / typical_scale).powi(2)
         } else {
@@ -376,8 +382,7 @@ impl Evidence {
         for axis in 0..3 {
             let mut displaced = result.transform;
             displaced[(axis, 3)] += step;
-            let norms = squared_norms(problem.evaluate_all(&displaced), cols);
-            spread += norms.iter().sum::<f64>() / (3 * norms.len().max(1)) as f64;
+            spread += mean_squared_norm(problem.evaluate_evidence(&displaced), cols) / 3.0;
         }
         problem.evaluate_all(&result.transform);
         Evidence {
@@ -413,6 +418,12 @@ impl Evidence {
         });
         cluster
     }
+}
+
+/// Mean of the rows' squared residual norms (0 without rows).
+fn mean_squared_norm(rows: &Rows, cols: usize) -> f64 {
+    let norms = squared_norms(rows, cols);
+    norms.iter().sum::<f64>() / norms.len().max(1) as f64
 }
 
 /// σ of a result (the RMS over its histograms).
@@ -768,7 +779,7 @@ fn judged_alone(evidence: &Evidence, problem: &dyn Problem, result: &mut Registr
 
 /// ICP from the initial guess by each of `sie::starts::CLOUD_STARTS`; the most significant
 /// result at its own scale wins. The background of the significance is the spread of the
-/// residuals at the initial guess (every source point).
+/// residuals at the initial guess (over the evidence subset), widened by `Evidence::around`.
 fn register_from_starts(
     problem: &mut CloudProblem<'_>,
     init: Matrix4<f64>,
@@ -778,7 +789,14 @@ fn register_from_starts(
 ) -> Result<RegistrationResult, Error> {
     let cols = problem.cols();
     let evidence = Evidence::of_clouds(problem, &init);
-    let rms = (evidence.background.spread_squared / cols as f64).sqrt();
+    // The RMS of every initial residual scales the later starts (the narrow β₀, the lead's
+    // tolerance); it needs a pass over every source point, made only when a later start runs.
+    let mut initial_rms = None;
+    let mut rms = |problem: &mut CloudProblem<'_>| {
+        *initial_rms.get_or_insert_with(|| {
+            (mean_squared_norm(problem.evaluate_all(&init), cols) / cols as f64).sqrt()
+        })
+    };
     let starts = if evidence.exact_start {
         &CLOUD_STARTS[..1]
     } else {
@@ -792,7 +810,7 @@ fn register_from_starts(
             Lead::ScaleFree => {
                 let lead = RegistrationConfig {
                     cost: CostFunction::Lp { p: 1.0 },
-                    translation_tolerance: LEAD_TRANSLATION_FRACTION * rms,
+                    translation_tolerance: LEAD_TRANSLATION_FRACTION * rms(problem),
                     rotation_tolerance: LEAD_ROTATION_TOLERANCE,
                     ..config.clone()
                 };
@@ -815,7 +833,7 @@ fn register_from_starts(
             kind
         };
         let start_config = RegistrationConfig {
-            initial_beta: (start.beta_fraction < 1.0).then_some(start.beta_fraction * rms),
+            initial_beta: (start.beta_fraction < 1.0).then(|| start.beta_fraction * rms(problem)),
             ..config.clone()
         };
         let result = run(

@@ -74,6 +74,9 @@ pub struct PreparedTarget {
     index_seconds: f64,
     /// The units `points` are held in (the caller's unless they were beyond the safe range).
     units: Units,
+    /// [`PreparedTarget::spread`] and [`PreparedTarget::spacing`], once asked for.
+    spread: OnceLock<f64>,
+    spacing: OnceLock<f64>,
 }
 
 enum TargetNormals {
@@ -209,6 +212,8 @@ impl PreparedTarget {
             normal_neighbours: options.normal_neighbours,
             index_seconds,
             units,
+            spread: OnceLock::new(),
+            spacing: OnceLock::new(),
         })
     }
 
@@ -263,6 +268,46 @@ impl PreparedTarget {
             points[k as usize] = self.units.point_out(&self.points[t]);
         }
         points
+    }
+
+    /// RMS distance of the target points from their centroid (over at most 1024 evenly
+    /// strided points), in the units the points are held in. Computed once per target.
+    pub(crate) fn spread(&self) -> f64 {
+        *self.spread.get_or_init(|| {
+            let sample: Vec<Point> = self.points.iter().step_by(self.stride()).copied().collect();
+            let n = sample.len().max(1) as f64;
+            let centre: Point = std::array::from_fn(|axis| sample.iter().map(|p| p[axis]).sum::<f64>() / n);
+            let sum: f64 = sample
+                .iter()
+                .map(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>())
+                .sum();
+            (sum / n).sqrt()
+        })
+    }
+
+    /// Median distance from a target point to its nearest other target point (over at most
+    /// 1024 evenly strided points), in the units the points are held in. Computed once per
+    /// target (a map or the previous frame is judged against by many registrations).
+    pub(crate) fn spacing(&self) -> f64 {
+        *self.spacing.get_or_init(|| {
+            let mut gaps: Vec<f64> = self
+                .points
+                .iter()
+                .step_by(self.stride())
+                .map(|p| self.index.nearest_two(p).2)
+                .filter(|d| d.is_finite())
+                .collect();
+            if gaps.is_empty() {
+                return 0.0;
+            }
+            let mid = gaps.len() / 2;
+            *gaps.select_nth_unstable_by(mid, f64::total_cmp).1
+        })
+    }
+
+    /// The step that visits at most 1024 of the points.
+    fn stride(&self) -> usize {
+        self.points.len().div_ceil(1024).max(1)
     }
 
     /// The units the points are held in.
