@@ -706,4 +706,56 @@ mod tests {
         assert_eq!(sample_indices(10, 0, 1).len(), 10);
         assert_eq!(sample_indices(10, 50, 1).len(), 10);
     }
+
+    /// Sources, targets, residual bits and the count considered.
+    type Snapshot = (Vec<u32>, Vec<u32>, Vec<u64>, usize);
+
+    fn snapshot(rows: &Rows) -> Snapshot {
+        let bits = rows.residual.iter().map(|r| r.to_bits()).collect();
+        (rows.source.clone(), rows.target.clone(), bits, rows.considered)
+    }
+
+    fn room_problem_rows(points: usize, check: impl FnOnce(&mut CloudProblem<'_>)) {
+        let scene = crate::synthetic::room_scene(points, 0.01, 5);
+        let config = RegistrationConfig::default();
+        let options = crate::PrepareOptions::from_config(&config);
+        let target = PreparedTarget::new(&scene.target, None, &options).unwrap();
+        let workers = Workers::new(1).unwrap();
+        let mut problem =
+            CloudProblem::new(&scene.source, &target, None, None, &config, workers, 0.0).unwrap();
+        check(&mut problem);
+    }
+
+    /// The verdict's evidence is matched on at most COARSE_POINTS source points (every point of a
+    /// smaller cloud), and matching it leaves the full evaluation's rows as they were, bit for bit.
+    #[test]
+    fn evidence_uses_the_coarse_subset_and_leaves_the_evaluation_alone() {
+        let shifted = |x: f64| {
+            let mut t = Matrix4::identity();
+            t[(0, 3)] = x;
+            t
+        };
+        room_problem_rows(12_000, |problem| {
+            let before = snapshot(problem.evaluate_all(&shifted(0.01)));
+            assert!(
+                before.3 == 12_000 && before.0.len() > 10_000,
+                "{}",
+                before.0.len()
+            );
+            let subset: std::collections::HashSet<u32> = problem.coarse.order.iter().copied().collect();
+            assert!(subset.len() <= COARSE_POINTS && subset.len() > COARSE_POINTS / 2);
+            for x in [0.2, -0.1] {
+                let evidence = problem.evaluate_evidence(&shifted(x));
+                assert_eq!(evidence.considered, subset.len());
+                assert!(evidence.len() > subset.len() / 2);
+                assert!(evidence.source.iter().all(|s| subset.contains(s)));
+            }
+            assert_eq!(snapshot(problem.evaluate_all(&shifted(0.01))), before);
+        });
+        room_problem_rows(3_000, |problem| {
+            let all = snapshot(problem.evaluate_all(&shifted(0.05)));
+            assert_eq!(snapshot(problem.evaluate_evidence(&shifted(0.05))), all);
+            assert_eq!(all.3, 3_000);
+        });
+    }
 }

@@ -510,6 +510,39 @@ mod tests {
         }
     }
 
+    /// Spacing and spread against brute force over the same strided points (every third of
+    /// 3 000 points: the stride that visits at most 1024).
+    #[test]
+    fn spacing_and_spread_match_brute_force() {
+        let scene = crate::synthetic::room_scene(3_000, 0.01, 4);
+        let target = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        let points = target.points();
+        let probes: Vec<&Point> = points.iter().step_by(3).collect();
+        let distance = |a: &Point, b: &Point| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+        let mut gaps: Vec<f64> = probes
+            .iter()
+            .map(|p| {
+                points
+                    .iter()
+                    .filter(|q| !std::ptr::eq(*p, *q))
+                    .map(|q| distance(p, q))
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        let mid = gaps.len() / 2;
+        let median = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        assert_eq!(target.spacing(), median);
+        assert_eq!(target.spacing(), median, "kept");
+        let n = probes.len() as f64;
+        let centre: Point = std::array::from_fn(|a| probes.iter().map(|p| p[a]).sum::<f64>() / n);
+        let rms = (probes.iter().map(|p| distance(p, &centre).powi(2)).sum::<f64>() / n).sqrt();
+        assert!(
+            (target.spread() - rms).abs() <= 1e-12 * rms,
+            "{} vs {rms}",
+            target.spread()
+        );
+    }
+
     #[test]
     fn bad_targets_are_refused_with_a_reason() {
         let options = PrepareOptions::default();
