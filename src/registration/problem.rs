@@ -587,9 +587,10 @@ impl CloudProblem<'_> {
 
     /// Rows of the evidence subset at `transform`: the coarse subset's source points (at most
     /// COARSE_POINTS, hash-chosen; the sample when it is no larger). The spreads a verdict
-    /// compares against are means over residuals, which 5 000 of them estimate to a few
-    /// percent. Matching every source point for them took 46 % of the sequence benchmark's
-    /// time at 10 k points (perf). Leaves the other passes' cached queries alone.
+    /// compares against are means over residuals, which 5 000 of them estimate to within
+    /// about 10 % (the outliers' share dominates the mean), and they enter the significance
+    /// through a logarithm. Matching every source point for them took 46 % of the sequence
+    /// benchmark's time at 10 k points (perf). Leaves the other passes' cached queries alone.
     pub fn evaluate_evidence(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, Purpose::Evidence);
         &self.rows
