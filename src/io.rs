@@ -315,8 +315,11 @@ fn parse_pcd(bytes: &[u8]) -> Result<RawCloud, String> {
         let blocks = layout
             .compressed
             .map_or(0, |(compressed, uncompressed)| compressed + 2 * uncompressed);
+        // A count the data cannot hold fails when read: ask only for what the bytes can hold
+        // (a header claiming 10^16 points in a 300-byte file is not a reason to probe 10^18
+        // bytes).
         let need = layout
-            .points
+            .points_present(bytes.len())
             .saturating_mul(READ_BYTES_PER_POINT)
             .saturating_add(blocks);
         ensure_memory(need, &format!("reading {} points", layout.points))?;
@@ -395,6 +398,23 @@ struct PcdLayout {
     record_bytes: u64,
     /// binary_compressed: the block's compressed and uncompressed sizes.
     compressed: Option<(u64, u64)>,
+}
+
+impl PcdLayout {
+    /// At most how many of the declared points the data after the header can hold: a byte
+    /// each in ascii, a record each in binary or in the block's uncompressed size (none when
+    /// the block's sizes are missing).
+    fn points_present(&self, file_bytes: usize) -> u64 {
+        let data = file_bytes.saturating_sub(self.data_start) as u64;
+        let record = self.record_bytes.max(1);
+        let fits = match (self.kind, self.compressed) {
+            (PcdData::Ascii, _) => data,
+            (PcdData::Binary, _) => data / record,
+            (PcdData::BinaryCompressed, Some((_, uncompressed))) => uncompressed / record,
+            (PcdData::BinaryCompressed, None) => 0,
+        };
+        self.points.min(fits)
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -641,6 +661,10 @@ fn parse_ply(bytes: &[u8]) -> Result<RawCloud, String> {
         .iter()
         .any(|names| names.iter().all(|n| has(n)));
     // ply-rs holds one record per entry of an element while it reads it.
+    // Counts the payload cannot hold are refused before memory is asked for them.
+    for element in header.elements.values() {
+        check_ply_element_fits(element, &header.encoding, reader.len())?;
+    }
     let largest = header.elements.values().map(|e| e.count).max().unwrap_or(0);
     let need = (vertex.count as u64)
         .saturating_add(largest as u64)
@@ -1131,6 +1155,27 @@ mod tests {
         let mut short = pcd_binary(&SAMPLE);
         short.truncate(short.len() - 19);
         assert!(read(&short).is_err());
+    }
+
+    /// A header that declares far more points than its data can hold is refused for that, not
+    /// by asking for the memory those points would need (the fuzzer's input: POINTS
+    /// 8 552 921 648 689 607 in a 300-byte PCD made the memory probe ask for 8·10^17 bytes,
+    /// which a sanitiser's allocator treats as a crash; a PLY vertex count likewise).
+    #[test]
+    fn impossible_declared_counts_fail_without_a_memory_probe() {
+        let pcd = b"VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 20\nHEIGHT 1\n\
+                    VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 8552921648689607\nDATA binary\n\
+                    \x00\x00\x80\x3f\x00\x00\x80\x3f\x00\x00\x80\x3f";
+        let layout = check_pcd_layout(pcd).unwrap().unwrap();
+        assert_eq!(layout.points, 8_552_921_648_689_607);
+        assert_eq!(layout.points_present(pcd.len()), 1);
+        let err = parse_pcd(pcd).err().unwrap();
+        assert!(!err.contains("memory"), "{err}");
+        let ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 8552921648689607\n\
+                    property float x\nproperty float y\nproperty float z\nend_header\n\
+                    \x00\x00\x80\x3f\x00\x00\x80\x3f\x00\x00\x80\x3f";
+        let err = parse_ply(ply).err().unwrap();
+        assert!(err.contains("truncated") && !err.contains("memory"), "{err}");
     }
 
     /// A PLY file with 313 395 vertices under `element vertex 300000` was read as 300 000.
