@@ -728,7 +728,9 @@ mod tests {
     }
 
     /// The verdict's evidence is matched on at most COARSE_POINTS source points (every point of a
-    /// smaller cloud), and matching it leaves the full evaluation's rows as they were, bit for bit.
+    /// smaller cloud), and matching it leaves the full evaluation's pass in place: its rows at
+    /// the same transform come out bit for bit as before (they would not if the evidence pass
+    /// were stored back into the sample's or everything's slot).
     #[test]
     fn evidence_uses_the_coarse_subset_and_leaves_the_evaluation_alone() {
         let shifted = |x: f64| {
