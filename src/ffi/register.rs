@@ -148,7 +148,7 @@ unsafe fn register_clouds_from<T: Coordinate>(
                 init,
                 |config, hooks, init| {
                     crate::registration::register_owned_clouds(
-                        &source_points,
+                        source_points,
                         target_points,
                         normals,
                         init,

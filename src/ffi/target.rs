@@ -6,7 +6,7 @@ use super::boundary::{FfiError, boundary, without_context};
 use super::input::{Coordinate, check_output, read_points, read_transform, write_output};
 use super::register::run_and_store;
 use super::{sie_context, sie_status};
-use crate::registration::{PrepareOptions, PreparedTarget, register_clouds_to, require_unit_normals};
+use crate::registration::{PrepareOptions, PreparedTarget, register_owned_to, require_unit_normals};
 
 /// A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
 /// (given, or estimated by the registrations that reach them and kept for later ones).
@@ -223,7 +223,7 @@ unsafe fn register_to_from<T: Coordinate>(
                 call.cancel_requested,
                 out_T_target_source,
                 init,
-                |config, hooks, init| register_clouds_to(&source, &target.prepared, init, config, hooks),
+                |config, hooks, init| register_owned_to(source, &target.prepared, init, config, hooks),
             )
         }
     })

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 
-use super::problem::{Problem, Rows};
+use super::problem::{Problem, RowScales, Rows};
 use super::{
     Error, Observer, Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind,
     StopReason, TraceEntry,
@@ -31,7 +31,8 @@ struct ModelSummary {
     noise_shape: f64,
 }
 
-/// Residuals divided by F, and the IRLS weights (eq. regprob2).
+/// Residuals divided by F, the IRLS weights (eq. regprob2), and the final evaluation's
+/// per-row probabilities (an update needs only the weights: one row buffer less at the peak).
 #[derive(Default)]
 struct Workspace {
     normalised: Vec<f64>,
@@ -68,23 +69,18 @@ impl Weighting {
         }
     }
 
-    /// Fits the cost to this iteration's residuals and fills `work.weights`.
-    fn update(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
-        let n = rows.len();
-        work.weights.resize(n, 0.0);
-        work.probabilities.resize(n, 0.0);
+    /// Fits the cost to this iteration's residuals (`normalised`: divided by F) and fills
+    /// `weights`.
+    fn update(&mut self, rows: &Rows, normalised: &[f64], cols: usize, weights: &mut Vec<f64>) {
+        weights.resize(rows.len(), 0.0);
         match self {
-            Weighting::Sie(schedule) => schedule.weigh(
-                &work.normalised,
-                cols,
-                &rows.scale,
-                &mut work.probabilities,
-                &mut work.weights,
-            ),
+            Weighting::Sie(schedule) => schedule.weigh(normalised, cols, |row| rows.scale.get(row), weights),
             Weighting::Baseline { cost, scale } => {
-                *scale = baseline_weights(*cost, &work.normalised, cols, &mut work.weights);
-                for (w, f) in work.weights.iter_mut().zip(&rows.scale) {
-                    *w /= f * f;
+                *scale = baseline_weights(*cost, normalised, cols, weights);
+                if let Some(scales) = rows.scale.per_row() {
+                    for (w, f) in weights.iter_mut().zip(scales) {
+                        *w /= f * f;
+                    }
                 }
             }
         }
@@ -99,19 +95,18 @@ impl Weighting {
     }
 
     /// Per-row probabilities at the final transform: P(I|r) for SIE, weight / max weight otherwise.
-    fn final_probabilities(&mut self, rows: &Rows, cols: usize, work: &mut Workspace) {
-        let n = rows.len();
-        work.probabilities.resize(n, 0.0);
+    fn final_probabilities(&mut self, normalised: &[f64], cols: usize, probabilities: &mut Vec<f64>) {
+        probabilities.resize(normalised.len() / cols, 0.0);
         match self {
             Weighting::Sie(schedule) => {
-                schedule.probabilities(&work.normalised, cols, &mut work.probabilities);
+                schedule.probabilities(normalised, cols, probabilities);
             }
             Weighting::Baseline { cost, .. } => {
-                work.weights.resize(n, 0.0);
-                baseline_weights(*cost, &work.normalised, cols, &mut work.weights);
-                let largest = work.weights.iter().cloned().fold(0.0, f64::max);
-                for (p, w) in work.probabilities.iter_mut().zip(&work.weights) {
-                    *p = if largest > 0.0 { w / largest } else { 0.0 };
+                // The weights computed in place: no second buffer at the registration's peak.
+                baseline_weights(*cost, normalised, cols, probabilities);
+                let largest = probabilities.iter().cloned().fold(0.0, f64::max);
+                for p in probabilities.iter_mut() {
+                    *p = if largest > 0.0 { *p / largest } else { 0.0 };
                 }
             }
         }
@@ -173,26 +168,27 @@ const TRAVEL_WIDTHS: f64 = 1.0;
 
 /// Rounding of coordinates of this magnitude, as a normalised residual (divided by the median
 /// row scale F): a few hundred ulps, far below any measured noise.
-pub(crate) fn resolution(magnitude: f64, row_scales: &[f64]) -> f64 {
+pub(crate) fn resolution(magnitude: f64, row_scales: &RowScales) -> f64 {
     const ULPS: f64 = 1024.0;
-    let mut scales = row_scales.to_vec();
-    let mid = scales.len() / 2;
-    let typical = if scales.is_empty() {
-        1.0
-    } else {
-        *scales.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    ULPS * f64::EPSILON * magnitude / typical
+    ULPS * f64::EPSILON * magnitude / row_scales.median()
 }
 
-fn normalise(rows: &Rows, cols: usize, out: &mut Vec<f64>) {
-    out.clear();
-    out.extend(
+/// The residuals divided by their rows' F: the rows' own residuals when every F is 1,
+/// otherwise written into `buffer`.
+fn normalised<'a>(rows: &'a Rows, cols: usize, buffer: &'a mut Vec<f64>) -> &'a [f64] {
+    let Some(scales) = rows.scale.per_row() else {
+        return &rows.residual;
+    };
+    buffer.clear();
+    // Exact: grown by doubling, a 10 M-row buffer would hold 16.7 M.
+    buffer.reserve_exact(rows.residual.len());
+    buffer.extend(
         rows.residual
             .chunks_exact(cols)
-            .zip(&rows.scale)
+            .zip(scales)
             .flat_map(|(row, f)| row.iter().map(move |r| r / f)),
     );
+    buffer
 }
 
 /// The IRLS loop (eq. regprob2) with SIE's β schedule: run to convergence, halve β, repeat
@@ -204,8 +200,83 @@ pub(crate) fn run(
     init: Matrix4<f64>,
     first_iteration: u32,
     config: &RegistrationConfig,
-    mut observer: Option<&mut Observer<'_>>,
+    observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
+    let (mut result, per_point) = run_pending(problem, init, first_iteration, config, observer)?;
+    per_point.spread(problem, &mut result);
+    Ok(result)
+}
+
+/// A run's final per-row probabilities, not yet spread over the source points: a result
+/// that is discarded (a start that does not win, a lead) never allocates its 16 bytes a
+/// source point, and one that is kept allocates them after the result it replaces is freed.
+pub(crate) struct PendingPerPoint {
+    row_probabilities: Vec<f64>,
+    model: FinalModel,
+}
+
+/// What a run's per-point results are computed from: its final noise model and transform.
+/// Kept instead of the results themselves (16 bytes a source point) while later starts run.
+pub(crate) struct FinalModel {
+    weighting: Weighting,
+    transform: Matrix4<f64>,
+}
+
+impl FinalModel {
+    /// The run's final evaluation again: the problem's rows at the final transform and their
+    /// probabilities under the final model. The same bits as the first time: matching is
+    /// exact (a cached match is reused only when no other target can have come nearer),
+    /// normals and noise scales are fixed per point, and the model is not refitted.
+    pub(crate) fn evaluate_again(mut self, problem: &mut dyn Problem) -> PendingPerPoint {
+        let cols = problem.cols();
+        problem.evaluate_all(&self.transform);
+        let mut buffer = Vec::new();
+        let normalised = normalised(problem.rows(), cols, &mut buffer);
+        let mut row_probabilities = Vec::new();
+        self.weighting
+            .final_probabilities(normalised, cols, &mut row_probabilities);
+        PendingPerPoint {
+            row_probabilities,
+            model: self,
+        }
+    }
+}
+
+impl PendingPerPoint {
+    /// Fills `result.probabilities` and `result.correspondences`; returns the model they
+    /// came from. The problem's rows must still be the run's final evaluation.
+    pub(crate) fn spread(self, problem: &dyn Problem, result: &mut RegistrationResult) -> FinalModel {
+        let rows = problem.rows();
+        assert!(
+            rows.indexed() && rows.len() == self.row_probabilities.len(),
+            "per-point results spread from rows other than the final evaluation's"
+        );
+        let source_count = problem.source_count();
+        // One per-point vector at a time, the row probabilities freed before the second.
+        let mut probabilities = vec![0.0; source_count];
+        for (&s, &p) in rows.source.iter().zip(&self.row_probabilities) {
+            probabilities[s as usize] = p;
+        }
+        drop(self.row_probabilities);
+        let mut correspondences = vec![-1i64; source_count];
+        for (&s, &t) in rows.source.iter().zip(&rows.target) {
+            correspondences[s as usize] = i64::from(t);
+        }
+        result.probabilities = probabilities;
+        result.correspondences = correspondences;
+        self.model
+    }
+}
+
+/// [`run`] with the per-point results left pending (`result.probabilities` and
+/// `result.correspondences` empty); the problem's rows are the final evaluation's.
+pub(crate) fn run_pending(
+    problem: &mut dyn Problem,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    config: &RegistrationConfig,
+    mut observer: Option<&mut Observer<'_>>,
+) -> Result<(RegistrationResult, PendingPerPoint), Error> {
     let cols = problem.cols();
     let anchor = problem.source_anchor();
     let mut transform = init;
@@ -259,13 +330,13 @@ pub(crate) fn run(
             stop = StopReason::Degenerate;
             break;
         }
-        normalise(rows, cols, &mut work.normalised);
         if iteration == first_iteration {
             if let Weighting::Sie(schedule) = &mut weighting {
                 schedule.set_resolution(resolution(problem.coordinate_magnitude(), &rows.scale));
             }
         }
-        weighting.update(rows, cols, &mut work);
+        let normalised = normalised(rows, cols, &mut work.normalised);
+        weighting.update(rows, normalised, cols, &mut work.weights);
         lap(&mut times.weighting);
         let solve = problem.solve(&transform, &work.weights);
         lap(&mut times.solve);
@@ -329,24 +400,20 @@ pub(crate) fn run(
         stop = StopReason::Degenerate;
     }
 
-    // Report everything at the returned transform, for every source point.
+    // Report everything at the returned transform, for every source point. The work buffers
+    // are freed as soon as they are done with: the final rows and the per-point results are
+    // the registration's peak (8 bytes a point each at 10 M points is 76 MiB).
     let source_count = problem.source_count();
+    work.weights = Vec::new();
     lap(&mut 0.0);
     problem.evaluate_all(&transform);
     lap(&mut times.evaluation);
     move_normals_time(problem, &mut times, |t| &mut t.evaluation);
     let rows = problem.rows();
-    normalise(rows, cols, &mut work.normalised);
-    weighting.final_probabilities(rows, cols, &mut work);
-    let mut probabilities = vec![0.0; source_count];
-    let mut correspondences = vec![-1i64; source_count];
-    let mut weight_sum = 0.0;
-    for (i, &p) in work.probabilities.iter().enumerate() {
-        let s = rows.source[i] as usize;
-        probabilities[s] = p;
-        correspondences[s] = rows.target[i] as i64;
-        weight_sum += p;
-    }
+    let normalised = normalised(rows, cols, &mut work.normalised);
+    weighting.final_probabilities(normalised, cols, &mut work.probabilities);
+    work.normalised = Vec::new();
+    let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
     let ModelSummary {
         sigma,
@@ -358,7 +425,7 @@ pub(crate) fn run(
         Weighting::Sie(schedule) => schedule.estimator().models().to_vec(),
         Weighting::Baseline { .. } => Vec::new(),
     };
-    Ok(RegistrationResult {
+    let result = RegistrationResult {
         transform,
         stop_reason: stop,
         converged: stop == StopReason::Converged,
@@ -369,8 +436,8 @@ pub(crate) fn run(
         noise_shape,
         inlier_fraction: weight_sum / source_count as f64,
         rmse,
-        probabilities,
-        correspondences,
+        probabilities: Vec::new(),
+        correspondences: Vec::new(),
         histograms,
         trace,
         times,
@@ -387,7 +454,12 @@ pub(crate) fn run(
             margin: f64::INFINITY,
             ..Quality::default()
         },
-    })
+    };
+    let pending = PendingPerPoint {
+        row_probabilities: std::mem::take(&mut work.probabilities),
+        model: FinalModel { weighting, transform },
+    };
+    Ok((result, pending))
 }
 
 /// `transform` is the one this iteration's update reached; `(rotation_change,
@@ -407,7 +479,7 @@ fn trace_entry(
     // iteration looked at (all of them, or the sample).
     let considered = rows.considered.max(n).max(1) as f64;
     let inlier_fraction = match weighting {
-        Weighting::Sie(_) => work.probabilities.iter().sum::<f64>() / considered,
+        Weighting::Sie(schedule) => schedule.inlier_mass() / considered,
         Weighting::Baseline { .. } => {
             let largest = work.weights.iter().cloned().fold(0.0, f64::max);
             if largest > 0.0 {

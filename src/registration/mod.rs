@@ -371,8 +371,8 @@ impl WarmStart {
     }
 }
 
-pub(crate) use pipeline::register_owned_clouds;
 pub use pipeline::{register_clouds, register_clouds_to, register_correspondences};
+pub(crate) use pipeline::{register_owned_clouds, register_owned_to};
 pub use target::{PrepareOptions, PreparedTarget};
 
 /// Caller code a registration calls back into. `Hooks::default()` uses none.

@@ -1,10 +1,11 @@
 //! The registration entry points: check the input, build the problem, run the IRLS driver.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
 
-use super::driver::run;
+use super::driver::{FinalModel, PendingPerPoint, run, run_pending};
 use super::input::{Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points};
 use super::problem::{CloudProblem, CorrespondenceProblem, Problem, Rows, RunKind};
 use super::target::{PrepareOptions, PreparedTarget};
@@ -107,7 +108,7 @@ fn correspondences_on(
     if config.cost == CostFunction::Sie && config.starts == Starts::Automatic {
         register_from_hypotheses(problem, source, target, init, config, observer)
     } else {
-        let scales = problem.rows().scale.clone();
+        let scales = row_scales(problem.rows());
         let evidence = Evidence {
             background: Pairs {
                 source,
@@ -167,7 +168,7 @@ fn register_from_hypotheses(
     config: &RegistrationConfig,
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<RegistrationResult, Error> {
-    let scales = problem.rows().scale.clone();
+    let scales = row_scales(problem.rows());
     let pairs = Pairs {
         source,
         target,
@@ -214,7 +215,7 @@ fn register_from_hypotheses(
         } else {
             StartKind::Hypothesis
         };
-        if !best.offer(problem, result, kind) {
+        if !best.offer(problem, result, None, kind) {
             break;
         }
     }
@@ -227,7 +228,7 @@ fn register_from_hypotheses(
 /// every row at the scale its own fit claims (`significance::at_scale`).
 struct BestOfStarts {
     evidence: Evidence,
-    best: Option<(f64, RegistrationResult)>,
+    best: Option<Best>,
     /// Every start's final transform, significance and precision (pose standard error as a
     /// row displacement).
     ends: Vec<(Matrix4<f64>, f64, f64)>,
@@ -236,6 +237,22 @@ struct BestOfStarts {
     starts_run: u32,
     /// Every start's trace entries, in the order they ran (the result reports all updates).
     trace: Vec<TraceEntry>,
+}
+
+/// The best start so far.
+struct Best {
+    significance: f64,
+    result: RegistrationResult,
+    /// What its per-point results are rebuilt from (ICP starts).
+    model: Option<FinalModel>,
+    /// Its per-point results were dropped while later starts ran (see `BestOfStarts::park`).
+    parked: bool,
+}
+
+/// A run's per-point results as offered: already in its result, or pending.
+enum PerPoint {
+    Spread(FinalModel),
+    Pending(PendingPerPoint),
 }
 
 impl BestOfStarts {
@@ -251,8 +268,16 @@ impl BestOfStarts {
     }
 
     /// Scores a run's result (its rows, at its transform, are the problem's last rows) and
-    /// keeps it if it is the best so far. False when the run was cancelled: no more starts.
-    fn offer(&mut self, problem: &dyn Problem, mut result: RegistrationResult, start: StartKind) -> bool {
+    /// keeps it if it is the best so far; pending per-point results are spread only when it
+    /// is kept (after the result it replaces is freed). False when the run was cancelled: no
+    /// more starts.
+    fn offer(
+        &mut self,
+        problem: &dyn Problem,
+        mut result: RegistrationResult,
+        per_point: Option<PerPoint>,
+        start: StartKind,
+    ) -> bool {
         self.starts_run += 1;
         self.next_iteration = result.iterations + 1;
         self.trace.append(&mut result.trace);
@@ -269,7 +294,11 @@ impl BestOfStarts {
         // and the earlier start (the paper's) is kept.
         let replaces = match &self.best {
             None => true,
-            Some((best_significance, best)) => {
+            Some(Best {
+                significance: best_significance,
+                result: best,
+                ..
+            }) => {
                 significance > *best_significance
                     && (significance > SAME_POSE_TIE * *best_significance || {
                         let best_precision = self
@@ -277,31 +306,57 @@ impl BestOfStarts {
                             .iter()
                             .find(|end| end.0 == best.transform)
                             .map_or(precision, |end| end.2);
-                        let typical_scale = median(problem.rows().scale.clone());
-                        let apart = moved_apart(problem.source_points(), &best.transform, &result.transform)
+                        let typical_scale = problem.rows().scale.median();
+                        let apart = moved_apart(problem.probe_points(), &best.transform, &result.transform)
                             / typical_scale;
                         apart > SAME_POSE_ERRORS * precision.max(best_precision)
                     })
             }
         };
         if cancelled || replaces {
-            self.best = Some((significance, result));
+            self.best = None;
+            let model = per_point.map(|per_point| match per_point {
+                PerPoint::Spread(model) => model,
+                PerPoint::Pending(pending) => pending.spread(problem, &mut result),
+            });
+            self.best = Some(Best {
+                significance,
+                result,
+                model,
+                parked: false,
+            });
         }
         !cancelled
+    }
+
+    /// Drops the best result's per-point results before another start runs (`finish`
+    /// rebuilds them): at 10 M points they are 153 MiB of the registration's peak, and
+    /// rebuilding costs one pass over the source points.
+    fn park(&mut self) {
+        if let Some(best) = self.best.as_mut().filter(|best| best.model.is_some()) {
+            best.result.probabilities = Vec::new();
+            best.result.correspondences = Vec::new();
+            best.parked = true;
+        }
     }
 
     /// The best result, with how the other starts' results relate to it: how many ended at
     /// the same pose (within a few standard errors of either), and the significance of the best
     /// one that did not.
-    fn finish(self, problem: &dyn Problem) -> RegistrationResult {
-        let (_, mut result) = self.best.expect("at least one start ran");
+    fn finish(self, problem: &mut dyn Problem) -> RegistrationResult {
+        let Best {
+            mut result,
+            model,
+            parked,
+            ..
+        } = self.best.expect("at least one start ran");
         result.iterations = self.next_iteration - 1;
         result.trace = self.trace;
         result.search.starts_run = self.starts_run;
         let (mut agreeing, mut runner_up) = (0, 0.0f64);
-        let typical_scale = median(problem.rows().scale.clone());
+        let typical_scale = problem.rows().scale.median();
         for (transform, significance, precision) in &self.ends {
-            let apart = moved_apart(problem.source_points(), &result.transform, transform) / typical_scale;
+            let apart = moved_apart(problem.probe_points(), &result.transform, transform) / typical_scale;
             let best_precision = self
                 .ends
                 .iter()
@@ -321,6 +376,10 @@ impl BestOfStarts {
             f64::INFINITY
         };
         result.quality.verdict = verdict(&result);
+        // Last: the rows the agreement above was measured with are the last start's.
+        if let Some(model) = model.filter(|_| parked) {
+            model.evaluate_again(problem).spread(problem, &mut result);
+        }
         result
     }
 }
@@ -346,7 +405,7 @@ impl Evidence {
         let exact =
             |rows: &Rows, spread: f64| spread <= super::driver::resolution(magnitude, &rows.scale).powi(2);
         let spread = mean_squared_norm(problem.evaluate_evidence(init), cols);
-        let typical_scale = median(problem.rows().scale.clone());
+        let typical_scale = problem.rows().scale.median();
         // The subset says so only when every point does.
         let exact_start = exact(problem.rows(), spread) && {
             let rows = problem.evaluate_all(init);
@@ -375,7 +434,7 @@ impl Evidence {
     /// nothing stands out. Leaves the problem's rows at the result.
     fn around(problem: &mut CloudProblem<'_>, result: &RegistrationResult) -> Self {
         let cols = problem.cols();
-        let typical_scale = median(problem.rows().scale.clone());
+        let typical_scale = problem.rows().scale.median();
         let step = (DISPLACED_WIDTHS * fitted_sigma(result) * typical_scale)
             .min(DISPLACED_SCENE_FRACTION * problem.target_spread());
         let mut spread = 0.0;
@@ -405,9 +464,12 @@ impl Evidence {
     /// Fills `result.quality` but for the verdict and the margin (which need every start) and
     /// returns the cluster at the result's fitted scale. The problem's rows must be the result's.
     fn assess(&self, problem: &dyn Problem, result: &mut RegistrationResult) -> significance::Cluster {
-        let norms = squared_norms(problem.rows(), problem.cols());
         let sigma = fitted_sigma(result);
-        let cluster = significance::at_scale(&norms, &self.background, sigma);
+        let cluster = significance::at_scale(
+            squared_norms(problem.rows(), problem.cols()),
+            &self.background,
+            sigma,
+        );
         result.quality.significance = cluster.significance;
         result.quality.sigma_to_spacing = self.spacing.map_or(0.0, |spacing| {
             if spacing > 0.0 {
@@ -422,8 +484,7 @@ impl Evidence {
 
 /// Mean of the rows' squared residual norms (0 without rows).
 fn mean_squared_norm(rows: &Rows, cols: usize) -> f64 {
-    let norms = squared_norms(rows, cols);
-    norms.iter().sum::<f64>() / norms.len().max(1) as f64
+    squared_norms(rows, cols).sum::<f64>() / rows.len().max(1) as f64
 }
 
 /// σ of a result (the RMS over its histograms).
@@ -465,12 +526,11 @@ const SAME_POSE_TIE: f64 = 1.05;
 /// closer (as row displacements).
 const SAME_POSE_ERRORS: f64 = 3.0;
 
-/// RMS distance between where two transforms put the source points (at most 1024 of them,
-/// evenly strided), in input units.
-fn moved_apart(points: &[Point], a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
-    let step = points.len().div_ceil(1024).max(1);
+/// RMS distance between where two transforms put `probe` (a problem's probe points), in input
+/// units.
+fn moved_apart(probe: &[Point], a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
     let difference = a - b;
-    let (sum, count) = points.iter().step_by(step).fold((0.0, 0usize), |(sum, n), p| {
+    let (sum, count) = probe.iter().fold((0.0, 0usize), |(sum, n), p| {
         let d = crate::geometry::transform_point(&difference, p);
         (sum + d[0] * d[0] + d[1] * d[1] + d[2] * d[2], n + 1)
     });
@@ -481,22 +541,17 @@ fn moved_apart(points: &[Point], a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
     }
 }
 
-/// Median (1 for none).
-fn median(mut values: Vec<f64>) -> f64 {
-    if values.is_empty() {
-        return 1.0;
-    }
-    let mid = values.len() / 2;
-    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+/// F_i of every row.
+fn row_scales(rows: &Rows) -> Vec<f64> {
+    (0..rows.len()).map(|i| rows.scale.get(i)).collect()
 }
 
 /// ‖r_i‖² / F_i² of every row.
-fn squared_norms(rows: &Rows, cols: usize) -> Vec<f64> {
-    rows.residual
-        .chunks_exact(cols)
-        .zip(&rows.scale)
-        .map(|(r, f)| r.iter().map(|v| v * v).sum::<f64>() / (f * f))
-        .collect()
+fn squared_norms(rows: &Rows, cols: usize) -> impl Iterator<Item = f64> + '_ {
+    rows.residual.chunks_exact(cols).enumerate().map(|(i, r)| {
+        let f = rows.scale.get(i);
+        r.iter().map(|v| v * v).sum::<f64>() / (f * f)
+    })
 }
 
 /// Runs `register` with `hooks` whose observer sees inlier fractions scaled by `share` (kept
@@ -540,15 +595,23 @@ pub fn register_clouds(
     let started = Instant::now();
     config.validate()?;
     let prepared = prepare_for(source, target, target_normals, config)?;
-    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
+    let mut result = register_to_prepared(
+        Cow::Borrowed(source),
+        &prepared,
+        init,
+        config,
+        hooks,
+        prepared.index_seconds(),
+    )?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
 
 /// `register_clouds` on clouds the caller hands over (the C ABI's copies): the target's copy
-/// is dropped once it is prepared (240 MB at 10 M points). The same result, bit for bit.
+/// is dropped once it is prepared and the source's once the problem holds it in pass order
+/// (240 MB each at 10 M points). The same result, bit for bit.
 pub(crate) fn register_owned_clouds(
-    source: &[Point],
+    source: Vec<Point>,
     target: Vec<Point>,
     target_normals: Option<Vec<Point>>,
     init: Option<&Matrix4<f64>>,
@@ -557,9 +620,10 @@ pub(crate) fn register_owned_clouds(
 ) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
-    let prepared = prepare_for(source, &target, target_normals.as_deref(), config)?;
+    let prepared = prepare_for(&source, &target, target_normals.as_deref(), config)?;
     drop((target, target_normals));
-    let mut result = register_to_prepared(source, &prepared, init, config, hooks, prepared.index_seconds())?;
+    let index_seconds = prepared.index_seconds();
+    let mut result = register_to_prepared(Cow::Owned(source), &prepared, init, config, hooks, index_seconds)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
@@ -606,15 +670,32 @@ pub fn register_clouds_to(
 ) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
-    let mut result = register_to_prepared(source, target, init, config, hooks, 0.0)?;
+    let mut result = register_to_prepared(Cow::Borrowed(source), target, init, config, hooks, 0.0)?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// `register_clouds_to` on a source the caller hands over (the C ABI's copy), dropped once the
+/// problem holds it in pass order. The same result, bit for bit.
+pub(crate) fn register_owned_to(
+    source: Vec<Point>,
+    target: &PreparedTarget,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
+    let started = Instant::now();
+    config.validate()?;
+    let mut result = register_to_prepared(Cow::Owned(source), target, init, config, hooks, 0.0)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
 
 /// `register_clouds_to` after `config.validate()`; `index_seconds` is what preparing the target
-/// cost this call.
+/// cost this call. An owned `source` (and any copy made of it) is dropped as soon as the
+/// problem is built.
 fn register_to_prepared(
-    source: &[Point],
+    source: Cow<'_, [Point]>,
     target: &PreparedTarget,
     init: Option<&Matrix4<f64>>,
     config: &RegistrationConfig,
@@ -637,22 +718,27 @@ fn register_to_prepared(
             )));
         }
     }
-    let source_kept = Skip::of(config).kept_indices(source);
-    let kept_points: Option<Vec<Point>> = source_kept
-        .as_ref()
-        .map(|kept| kept.iter().map(|&i| source[i as usize]).collect());
-    let points = kept_points.as_deref().unwrap_or(source);
+    let source_count = source.len();
+    let source_kept = Skip::of(config).kept_indices(&source);
+    let points: Cow<'_, [Point]> = match &source_kept {
+        Some(kept) => {
+            let picked = kept.iter().map(|&i| source[i as usize]).collect();
+            drop(source);
+            Cow::Owned(picked)
+        }
+        None => source,
+    };
     require_points("source", points.len(), 3)?;
-    require_finite("source", points)?;
+    require_finite("source", &points)?;
     let init = checked_initial_guess(init)?;
-    let share = points.len() as f64 / source.len().max(1) as f64;
+    let share = points.len() as f64 / source_count.max(1) as f64;
     let result = with_share(hooks, share, |hooks| {
         let target_points = if hooks.noise.is_some() || config.noise != NoiseModel::Constant {
             target.points_in_caller_order()
         } else {
             Vec::new()
         };
-        let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, points, &target_points)?;
+        let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, &points, &target_points)?;
         let workers = Workers::new(config.threads).map_err(Error::InvalidArgument)?;
         // The target fixed the lengths when it was prepared; the noise scales fix their own.
         let units = target
@@ -660,7 +746,7 @@ fn register_to_prepared(
             .with_noise_of(&sigma_slices(&source_sigma, &target_sigma));
         if units.is_identity() {
             let mut problem = CloudProblem::new(
-                points,
+                &points,
                 target,
                 source_sigma,
                 target_sigma,
@@ -669,9 +755,11 @@ fn register_to_prepared(
                 index_seconds,
             )
             .map_err(Error::InvalidArgument)?;
+            drop(points);
             return register_cloud_problem(&mut problem, init, config, hooks.observer);
         }
-        let moved = units.points(points);
+        let moved = units.points(&points);
+        drop(points);
         let mut problem = CloudProblem::new(
             &moved,
             target,
@@ -682,6 +770,7 @@ fn register_to_prepared(
             index_seconds,
         )
         .map_err(Error::InvalidArgument)?;
+        drop(moved);
         let config = units.config_in(config);
         let mut result = in_units(&units, hooks.observer, |observer| {
             register_cloud_problem(&mut problem, units.transform_in(&init), &config, observer)
@@ -692,8 +781,8 @@ fn register_to_prepared(
     if source_kept.is_none() && target.kept().is_none() {
         return Ok(result);
     }
-    let source_map = source_kept.unwrap_or_else(|| (0..source.len() as u32).collect());
-    Ok(expand(result, &source_map, source.len(), target.kept()))
+    let source_map = source_kept.unwrap_or_else(|| (0..source_count as u32).collect());
+    Ok(expand(result, &source_map, source_count, target.kept()))
 }
 
 /// ICP on a built problem (target index and normals ready): SIE's starts, or the baseline's
@@ -709,8 +798,8 @@ fn register_cloud_problem(
     if let Some(warm) = config.warm_start.filter(|_| sie) {
         let mut result = run(problem, init, 1, config, observer.as_deref_mut())?;
         result.search.start = StartKind::WarmStart;
-        let typical_scale = median(problem.rows().scale.clone());
-        let moved = moved_apart(problem.source_points(), &init, &result.transform) / typical_scale;
+        let typical_scale = problem.rows().scale.median();
+        let moved = moved_apart(problem.probe_points(), &init, &result.transform) / typical_scale;
         if result.stop_reason == StopReason::Cancelled || warm_model_held(&warm, &result, moved) {
             let evidence = Evidence::around(problem, &result);
             judged_alone(&evidence, problem, &mut result);
@@ -805,6 +894,7 @@ fn register_from_starts(
     let mut best = BestOfStarts::new(evidence);
     best.next_iteration = first_iteration;
     for start in starts {
+        best.park();
         let (from, kind) = match start.lead {
             Lead::None => (init, StartKind::InitialGuess),
             Lead::ScaleFree => {
@@ -815,11 +905,16 @@ fn register_from_starts(
                     ..config.clone()
                 };
                 problem.set_run_kind(RunKind::Lead);
-                let led = run(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
+                let led = run_pending(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
                 problem.set_run_kind(RunKind::Registration);
-                let mut led = led?;
+                let (mut led, pending) = led?;
                 if led.stop_reason == StopReason::Cancelled {
-                    best.offer(problem, led, StartKind::ScaleFreeLead);
+                    best.offer(
+                        problem,
+                        led,
+                        Some(PerPoint::Pending(pending)),
+                        StartKind::ScaleFreeLead,
+                    );
                     break;
                 }
                 best.next_iteration = led.iterations + 1;
@@ -836,7 +931,7 @@ fn register_from_starts(
             initial_beta: (start.beta_fraction < 1.0).then(|| start.beta_fraction * rms(problem)),
             ..config.clone()
         };
-        let result = run(
+        let (mut result, pending) = run_pending(
             problem,
             from,
             best.next_iteration,
@@ -853,10 +948,15 @@ fn register_from_starts(
         // 100-frame odometry run from constant-velocity guesses was UNSUPPORTED). The first
         // start's result shifted by 10σ shows one; the wider of the two backgrounds judges
         // every start.
-        if best.starts_run == 0 {
+        let per_point = if best.starts_run == 0 {
+            // Nothing to replace yet; spread before the evidence moves the rows.
+            let model = pending.spread(problem, &mut result);
             best.evidence.widen_around(problem, &result);
-        }
-        if !best.offer(problem, result, kind) || stayed {
+            PerPoint::Spread(model)
+        } else {
+            PerPoint::Pending(pending)
+        };
+        if !best.offer(problem, result, Some(per_point), kind) || stayed {
             break;
         }
     }
@@ -868,8 +968,8 @@ fn register_from_starts(
 /// guess cannot be pulled elsewhere by data that did not pull the widest one (a sequence's
 /// constant-velocity guess is the common case: one start, the paper's cost).
 fn stayed_near(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> bool {
-    let typical_scale = median(problem.rows().scale.clone());
-    let moved = moved_apart(problem.source_points(), init, &result.transform) / typical_scale;
+    let typical_scale = problem.rows().scale.median();
+    let moved = moved_apart(problem.probe_points(), init, &result.transform) / typical_scale;
     moved <= STAYED_SIGMAS * fitted_sigma(result)
 }
 

@@ -15,17 +15,78 @@ use crate::geometry::{
 use crate::noise::combine;
 use crate::parallel::Workers;
 
+/// The noise scale F of each row (§4.4).
+#[derive(Clone, Debug, Default)]
+pub enum RowScales {
+    /// Every F is 1 (constant noise, ICP's default): 8 bytes a row not stored, and the
+    /// residuals are their own normalised values (no copy).
+    #[default]
+    Unit,
+    PerRow(Vec<f64>),
+}
+
+impl RowScales {
+    /// F of `row`.
+    pub fn get(&self, row: usize) -> f64 {
+        match self {
+            RowScales::Unit => 1.0,
+            RowScales::PerRow(scales) => scales[row],
+        }
+    }
+
+    /// The scales row by row; `None` when every F is 1.
+    pub fn per_row(&self) -> Option<&[f64]> {
+        match self {
+            RowScales::Unit => None,
+            RowScales::PerRow(scales) => Some(scales),
+        }
+    }
+
+    /// The median F (1 when every F is 1 or there are no rows).
+    pub fn median(&self) -> f64 {
+        match self.per_row() {
+            Some(scales) if !scales.is_empty() => {
+                let mut scales = scales.to_vec();
+                let mid = scales.len() / 2;
+                *scales.select_nth_unstable_by(mid, f64::total_cmp).1
+            }
+            _ => 1.0,
+        }
+    }
+
+    fn push(&mut self, scale: f64) {
+        if let RowScales::PerRow(scales) = self {
+            scales.push(scale);
+        }
+    }
+
+    fn clear(&mut self) {
+        if let RowScales::PerRow(scales) = self {
+            scales.clear();
+        }
+    }
+
+    fn reserve_exact(&mut self, rows: usize) {
+        if let RowScales::PerRow(scales) = self {
+            scales.reserve_exact(rows);
+        }
+    }
+}
+
 /// Residual rows of one iteration.
 #[derive(Default)]
 pub struct Rows {
-    /// Source point of each row.
+    /// Number of rows.
+    count: usize,
+    /// Source point of each row; empty for the rows of an ICP update, which the solver reads
+    /// through its pass (8 bytes a row less at the registration's peak).
     pub source: Vec<u32>,
-    /// Matched target point of each row.
+    /// Matched target point of each row; empty where `source` is.
     pub target: Vec<u32>,
     /// Residuals, rows × cols, input units.
     pub residual: Vec<f64>,
-    /// Noise scale F of each row (§4.4); 1 with constant noise.
-    pub scale: Vec<f64>,
+    /// Noise scale F of each row (§4.4).
+    pub scale: RowScales,
     /// Source points this pass looked at; the rows are those of them that found a residual
     /// (matched and, point-to-plane, with a target normal). Inlier fractions divide by it.
     pub considered: usize,
@@ -33,19 +94,40 @@ pub struct Rows {
 
 impl Rows {
     pub fn len(&self) -> usize {
-        self.source.len()
+        self.count
     }
 
     pub fn is_empty(&self) -> bool {
-        self.source.is_empty()
+        self.count == 0
+    }
+
+    /// Whether `source` and `target` name each row's points.
+    pub fn indexed(&self) -> bool {
+        self.source.len() == self.count && self.target.len() == self.count
     }
 
     fn clear(&mut self) {
+        self.count = 0;
         self.source.clear();
         self.target.clear();
         self.residual.clear();
         self.scale.clear();
         self.considered = 0;
+    }
+
+    /// Room for `rows` rows of `cols` residuals, exactly: grown by doubling, the rows of 10 M
+    /// points would hold room for 16.7 M (160 MiB more). Without `indexed`, the room of
+    /// `source` and `target` is freed.
+    fn reserve_exact(&mut self, rows: usize, cols: usize, indexed: bool) {
+        if indexed {
+            self.source.reserve_exact(rows);
+            self.target.reserve_exact(rows);
+        } else {
+            self.source = Vec::new();
+            self.target = Vec::new();
+        }
+        self.residual.reserve_exact(rows * cols);
+        self.scale.reserve_exact(rows);
     }
 }
 
@@ -56,8 +138,9 @@ pub trait Problem {
     /// not).
     fn rematches(&self) -> bool;
     fn source_count(&self) -> usize;
-    /// The source points as given.
-    fn source_points(&self) -> &[Point];
+    /// At most [`PROBE_POINTS`] source points, evenly strided in the caller's order: where
+    /// two transforms are compared (`moved_apart`).
+    fn probe_points(&self) -> &[Point];
     /// Typical coordinate magnitude of the source points, the median of max |x|, |y|, |z|
     /// (sets the arithmetic's resolution; a garbage point far out does not).
     fn coordinate_magnitude(&self) -> f64;
@@ -97,7 +180,7 @@ fn noise_scale(source_sigma: &Option<Vec<f64>>, target_sigma: &Option<Vec<f64>>,
 fn rms_displacement(
     count: usize,
     source: impl Fn(usize) -> Point,
-    scales: &[f64],
+    scales: &RowScales,
     old: &Matrix4<f64>,
     new: &Matrix4<f64>,
 ) -> f64 {
@@ -106,14 +189,23 @@ fn rms_displacement(
     }
     let difference = new - old;
     let sum: f64 = (0..count)
-        .zip(scales)
-        .map(|(i, f)| {
+        .map(|i| {
+            let f = scales.get(i);
             let d = transform_point(&difference, &source(i));
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (f * f)
         })
         .filter(|v| v.is_finite())
         .sum();
     (sum / count as f64).sqrt()
+}
+
+/// How many source points [`Problem::probe_points`] holds at most.
+pub const PROBE_POINTS: usize = 1024;
+
+/// Every `len.div_ceil(PROBE_POINTS)`-th point, from the first.
+fn probe_points_of(points: &[Point]) -> Vec<Point> {
+    let step = points.len().div_ceil(PROBE_POINTS).max(1);
+    points.iter().step_by(step).copied().collect()
 }
 
 /// Median over the points of their largest coordinate magnitude.
@@ -132,6 +224,7 @@ fn typical_magnitude(points: &[Point]) -> f64 {
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
 pub struct CorrespondenceProblem<'a> {
     source: &'a [Point],
+    probe: Vec<Point>,
     pairs: Vec<(Point, Point)>,
     rows: Rows,
 }
@@ -145,16 +238,20 @@ impl<'a> CorrespondenceProblem<'a> {
     ) -> Self {
         let n = source.len();
         let rows = Rows {
+            count: n,
             source: (0..n as u32).collect(),
             target: (0..n as u32).collect(),
             residual: vec![0.0; 3 * n],
-            scale: (0..n)
-                .map(|i| noise_scale(&source_sigma, &target_sigma, i, i))
-                .collect(),
+            scale: RowScales::PerRow(
+                (0..n)
+                    .map(|i| noise_scale(&source_sigma, &target_sigma, i, i))
+                    .collect(),
+            ),
             considered: n,
         };
         CorrespondenceProblem {
             source,
+            probe: probe_points_of(source),
             pairs: source.iter().copied().zip(target.iter().copied()).collect(),
             rows,
         }
@@ -174,8 +271,8 @@ impl Problem for CorrespondenceProblem<'_> {
         self.source.len()
     }
 
-    fn source_points(&self) -> &[Point] {
-        self.source
+    fn probe_points(&self) -> &[Point] {
+        &self.probe
     }
 
     fn coordinate_magnitude(&self) -> f64 {
@@ -222,17 +319,45 @@ impl Problem for CorrespondenceProblem<'_> {
 /// become one 3×4 product.
 /// The moved point T·p itself is not kept (24 bytes a point): rows and the solver recompute it
 /// from the pass's copy of p, bit for bit.
+/// 8 bytes a source point (the margin and the history index in 16 bits each).
 #[derive(Clone, Copy)]
 struct Match {
     /// Nearest target at the last query.
     nearest: u32,
     /// `history` index of the transform of the last query (NEVER_QUERIED: none).
-    queried_at: u32,
+    queried_at: u16,
     /// d₂ − d₁ at the last query, rounded down.
-    margin: f32,
+    margin: Margin,
 }
 
-const NEVER_QUERIED: u32 = u32::MAX;
+/// The history is cleared (every cached query dropped) when it reaches this many transforms.
+const NEVER_QUERIED: u16 = u16::MAX;
+
+/// A non-negative distance in 16 bits: the upper half of its f32 (8 bits of mantissa, the
+/// full exponent range), rounded towards zero, so never above the distance it stands for and
+/// the skip test stays exact. Within 0.8 % below: a few more queries, no other change.
+#[derive(Clone, Copy)]
+struct Margin(u16);
+
+impl Margin {
+    /// "Query again".
+    const ZERO: Margin = Margin(0);
+
+    /// The largest margin at most `distance` (≥ 0; ∞ and values beyond f32 give f32::MAX's).
+    fn at_most(distance: f64) -> Margin {
+        let narrowed = if distance.is_finite() {
+            // Rounded to nearest, so possibly up by 6e-8 relative: callers leave room for it.
+            (distance as f32).clamp(0.0, f32::MAX)
+        } else {
+            f32::MAX
+        };
+        Margin((narrowed.to_bits() >> 16) as u16)
+    }
+
+    fn get(self) -> f64 {
+        f64::from(f32::from_bits(u32::from(self.0) << 16))
+    }
+}
 
 /// While β is annealed the fit needs the basin, not the last digit: at most this many source
 /// points are matched then (σ/√5000 is far below any β level, and the histogram still has
@@ -292,14 +417,21 @@ impl Match {
     const EMPTY: Match = Match {
         nearest: NO_MATCH,
         queried_at: NEVER_QUERIED,
-        margin: 0.0,
+        margin: Margin::ZERO,
     };
 }
 
 /// ICP: nearest-neighbour correspondences onto a prepared target (kd-tree and normals shared,
 /// see `PreparedTarget`); this part is per registration.
 pub struct CloudProblem<'a> {
-    source: &'a [Point],
+    /// Source points (kept ones); the problem holds them only in pass order, so a caller that
+    /// owns its copy can drop it once the problem is built.
+    source_count: usize,
+    /// See [`Problem::probe_points`].
+    probe: Vec<Point>,
+    /// See [`Problem::coordinate_magnitude`] and [`Problem::source_anchor`]; computed once.
+    magnitude: f64,
+    anchor: Point,
     target: &'a PreparedTarget,
     metric: Metric,
     /// Source points matched in each iteration (all, or a fixed random subset), in
@@ -312,7 +444,8 @@ pub struct CloudProblem<'a> {
     use_coarse: bool,
     /// A lead run (its end is only a start for SIE): every update on the coarse subset.
     lead_only: bool,
-    /// Every source point, for the final evaluation when `sample` is a subset (filled then).
+    /// Every source point, for the final evaluation when `sample` is a subset (empty
+    /// otherwise).
     everything: Pass,
     source_sigma: Option<Vec<f64>>,
     /// Per kept target point, in the caller's order.
@@ -341,7 +474,7 @@ pub struct CloudProblem<'a> {
 impl<'a> CloudProblem<'a> {
     /// `index_seconds`: what preparing `target` cost, when this registration prepared it.
     pub fn new(
-        source: &'a [Point],
+        source: &[Point],
         target: &'a PreparedTarget,
         source_sigma: Option<Vec<f64>>,
         target_sigma: Option<Vec<f64>>,
@@ -373,22 +506,42 @@ impl<'a> CloudProblem<'a> {
         } else {
             Vec::new()
         };
+        // Built now rather than at the first final evaluation, so the problem needs no source
+        // afterwards; it is there at the registration's peak either way.
+        let everything = if sample.len() < source.len() {
+            let mut everything: Vec<u32> = (0..source.len() as u32).collect();
+            sort_along_curve(source, &mut everything);
+            Pass::new(source, everything)
+        } else {
+            Pass::default()
+        };
+        // As `noise_scale`: F is 1 unless both clouds have per-point sigmas.
+        let scale = match (&source_sigma, &target_sigma) {
+            (Some(_), Some(_)) => RowScales::PerRow(Vec::new()),
+            _ => RowScales::Unit,
+        };
         Ok(CloudProblem {
-            source,
+            source_count: source.len(),
+            probe: probe_points_of(source),
+            magnitude: typical_magnitude(source),
+            anchor: crate::geometry::median_point(source),
             target,
             metric: config.metric,
             sample: Pass::new(source, sample),
             coarse: Pass::new(source, coarse),
             use_coarse: false,
             lead_only: false,
-            everything: Pass::default(),
+            everything,
             source_sigma,
             target_sigma,
             workers,
             history: Vec::new(),
             moves: Vec::new(),
             typical_margin: f64::INFINITY,
-            rows: Rows::default(),
+            rows: Rows {
+                scale,
+                ..Rows::default()
+            },
             row_pass: Vec::new(),
             solved_pass: Which::Sample,
             linearised: Matrix4::identity(),
@@ -402,14 +555,7 @@ impl<'a> CloudProblem<'a> {
     /// (the sample when that is small enough).
     fn pass_for(&mut self, purpose: Purpose) -> Which {
         match purpose {
-            Purpose::Evaluate if self.sample.order.len() < self.source.len() => {
-                if self.everything.order.is_empty() {
-                    let mut everything: Vec<u32> = (0..self.source.len() as u32).collect();
-                    sort_along_curve(self.source, &mut everything);
-                    self.everything = Pass::new(self.source, everything);
-                }
-                Which::Everything
-            }
+            Purpose::Evaluate if self.sample.order.len() < self.source_count => Which::Everything,
             Purpose::Solve if self.use_coarse && !self.coarse.order.is_empty() => Which::Coarse,
             Purpose::Evidence if !self.coarse.order.is_empty() => Which::Coarse,
             _ => Which::Sample,
@@ -425,7 +571,7 @@ impl<'a> CloudProblem<'a> {
                 pass.matches.fill(Match::EMPTY);
             }
         }
-        let generation = self.history.len() as u32;
+        let generation = self.history.len() as u16;
         // How far each earlier query transform is from this one, applied to a point.
         let mut moves = std::mem::take(&mut self.moves);
         moves.clear();
@@ -435,10 +581,10 @@ impl<'a> CloudProblem<'a> {
         self.match_pass(transform, &mut pass, &moves, generation);
         self.moves = moves;
         if self.typical_margin == f64::INFINITY {
-            let mut margins: Vec<f32> = pass.matches.iter().map(|m| m.margin).collect();
+            let mut margins: Vec<f64> = pass.matches.iter().map(|m| m.margin.get()).collect();
             if !margins.is_empty() {
                 let half = margins.len() / 2;
-                self.typical_margin = f64::from(*margins.select_nth_unstable_by(half, f32::total_cmp).1);
+                self.typical_margin = *margins.select_nth_unstable_by(half, f64::total_cmp).1;
             }
         }
         self.estimate_missing_normals(&pass);
@@ -477,7 +623,7 @@ impl<'a> CloudProblem<'a> {
         self.normals_seconds += started.elapsed().as_secs_f64();
     }
 
-    fn match_pass(&self, transform: &Matrix4<f64>, pass: &mut Pass, moves: &[Matrix4<f64>], generation: u32) {
+    fn match_pass(&self, transform: &Matrix4<f64>, pass: &mut Pass, moves: &[Matrix4<f64>], generation: u16) {
         let (points, index) = (&pass.points, self.target.index());
         let (last_move, typical_margin) = (moves.last(), self.typical_margin);
         self.workers
@@ -493,7 +639,7 @@ impl<'a> CloudProblem<'a> {
                     }
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
-                            < f64::from(slot.margin);
+                            < slot.margin.get();
                     if !unchanged {
                         let point = transform_point(transform, a);
                         slot.queried_at = generation;
@@ -504,18 +650,13 @@ impl<'a> CloudProblem<'a> {
                             last_move.is_some_and(|m| 2.0 * length(&transform_point(m, a)) >= typical_margin);
                         if moving_fast {
                             slot.nearest = index.nearest_one(&point).0 as u32;
-                            slot.margin = 0.0;
+                            slot.margin = Margin::ZERO;
                         } else {
                             let (nearest, first, second) = index.nearest_two(&point);
                             slot.nearest = nearest as u32;
                             // Less a relative 1e-6: covers the rounding of the distances and of
                             // the conversion to f32 (at most 6e-8 relative).
-                            let gap = (second - first) * (1.0 - 1e-6);
-                            slot.margin = if gap.is_finite() {
-                                (gap as f32).clamp(0.0, f32::MAX)
-                            } else {
-                                f32::MAX
-                            };
+                            slot.margin = Margin::at_most((second - first) * (1.0 - 1e-6));
                         }
                     }
                     previous = Some((a, *slot));
@@ -523,16 +664,24 @@ impl<'a> CloudProblem<'a> {
             });
     }
 
-    /// Rows (in the caller's indices) and, for [`Purpose::Solve`], the solver's per-row terms of
-    /// the matched pairs.
+    /// The rows of the matched pairs: for [`Purpose::Solve`] with each row's index in the pass
+    /// (`row_pass`, from which the solver reads its points), otherwise with the points' indices
+    /// (the caller's).
     fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, purpose: Purpose) {
         let target = self.target;
         let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
+        let solve = purpose == Purpose::Solve;
         let rows = &mut self.rows;
         rows.clear();
         rows.considered = pass.order.len();
+        rows.reserve_exact(pass.order.len(), if plane { 1 } else { 3 }, !solve);
         self.row_pass.clear();
+        if solve {
+            self.row_pass.reserve_exact(pass.order.len());
+        } else {
+            self.row_pass = Vec::new();
+        }
         for (k, m) in pass.matches.iter().enumerate() {
             if m.nearest == NO_MATCH {
                 continue;
@@ -547,8 +696,13 @@ impl<'a> CloudProblem<'a> {
             let q = target.points()[t];
             let moved = transform_point(transform, &pass.points[k]);
             let d = [moved[0] - q[0], moved[1] - q[1], moved[2] - q[2]];
-            rows.source.push(s as u32);
-            rows.target.push(original_t as u32);
+            rows.count += 1;
+            if solve {
+                self.row_pass.push(k as u32);
+            } else {
+                rows.source.push(s as u32);
+                rows.target.push(original_t as u32);
+            }
             if plane {
                 let n = normal;
                 rows.residual.push(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]);
@@ -557,9 +711,6 @@ impl<'a> CloudProblem<'a> {
             }
             rows.scale
                 .push(noise_scale(&self.source_sigma, &self.target_sigma, s, original_t));
-            if purpose == Purpose::Solve {
-                self.row_pass.push(k as u32);
-            }
         }
     }
 }
@@ -620,19 +771,19 @@ impl Problem for CloudProblem<'_> {
     }
 
     fn source_count(&self) -> usize {
-        self.source.len()
+        self.source_count
     }
 
-    fn source_points(&self) -> &[Point] {
-        self.source
+    fn probe_points(&self) -> &[Point] {
+        &self.probe
     }
 
     fn coordinate_magnitude(&self) -> f64 {
-        typical_magnitude(self.source)
+        self.magnitude
     }
 
     fn source_anchor(&self) -> Point {
-        crate::geometry::median_point(self.source)
+        self.anchor
     }
 
     fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {

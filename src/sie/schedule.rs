@@ -192,14 +192,13 @@ impl Schedule {
     }
 
     /// Fits SIE to this update's residuals (rows × `cols`, divided by the row scales F_i of
-    /// §4.4) and fills P(I|R_i) and the IRLS weights of eq. (regprob3) / (regprob3GGD):
+    /// §4.4; `row_scale(i)` is F_i) and fills the IRLS weights of eq. (regprob3) / (regprob3GGD):
     /// w_i = σ^-p·max(‖r_i‖, δ)^(p-2)·P(I|r_i)·F_i^-2; σ^-p is common to all rows and dropped.
     pub fn weigh(
         &mut self,
         normalised: &[f64],
         cols: usize,
-        row_scales: &[f64],
-        probabilities: &mut [f64],
+        row_scale: impl Fn(usize) -> f64,
         weights: &mut [f64],
     ) {
         let estimator = &mut self.estimator;
@@ -225,32 +224,33 @@ impl Schedule {
             }
             Phase::Frozen => {}
         }
-        estimator.probabilities(normalised, cols, probabilities);
-        self.inlier_mass = probabilities.iter().sum();
+        // P(I|R_i) first, turned into the weight in place (no second buffer of rows).
+        estimator.probabilities(normalised, cols, weights);
+        self.inlier_mass = weights.iter().sum();
         let estimator = &self.estimator;
         let p = estimator.mean_shape_exponent();
         let delta = (SHAPE_DELTA * self.width()).max(1e-12);
-        for (i, (w, (&probability, &scale))) in weights
-            .iter_mut()
-            .zip(probabilities.iter().zip(row_scales))
-            .enumerate()
-        {
+        for (i, w) in weights.iter_mut().enumerate() {
+            let scale = row_scale(i);
             let shape_factor = if p == 2.0 {
                 1.0
             } else {
                 row_norm(normalised, cols, i).max(delta).powf(p - 2.0)
             };
-            *w = probability * shape_factor / (scale * scale);
+            *w = *w * shape_factor / (scale * scale);
         }
+    }
+
+    /// Σ_i P(I|R_i) over the rows of the last `weigh`.
+    pub fn inlier_mass(&self) -> f64 {
+        self.inlier_mass
     }
 
     /// P(I|R_i) under the current model (fitted to these residuals first when no update has
     /// fitted one yet, e.g. when the iteration budget was already spent).
     pub fn probabilities(&mut self, normalised: &[f64], cols: usize, out: &mut [f64]) {
         if !self.started {
-            let mut unused = vec![0.0; out.len()];
-            self.weigh(normalised, cols, &vec![1.0; out.len()], out, &mut unused);
-            return;
+            self.weigh(normalised, cols, |_| 1.0, out);
         }
         self.estimator.probabilities(normalised, cols, out);
     }
