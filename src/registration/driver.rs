@@ -244,22 +244,46 @@ impl FinalModel {
 
 impl PendingPerPoint {
     /// Fills `result.probabilities` and `result.correspondences`; returns the model they
-    /// came from. The problem's rows must still be the run's final evaluation.
+    /// came from. The problem's rows must still be the run's final evaluation; they stay.
     pub(crate) fn spread(self, problem: &dyn Problem, result: &mut RegistrationResult) -> FinalModel {
         let rows = problem.rows();
+        self.fill(&rows.source, &rows.target, problem.source_count(), result)
+    }
+
+    /// [`PendingPerPoint::spread`] for rows that are read for the last time: the problem's
+    /// rows are taken (empty until its next linearise or evaluation) and their residuals
+    /// freed first, so that the per-point results need no more memory than the final
+    /// evaluation did (at 10 M points, 76 MiB less at the registration's peak).
+    pub(crate) fn spread_last(
+        self,
+        problem: &mut dyn Problem,
+        result: &mut RegistrationResult,
+    ) -> FinalModel {
+        let source_count = problem.source_count();
+        let (source, target) = problem.take_row_indices();
+        self.fill(&source, &target, source_count, result)
+    }
+
+    /// Row `i`'s probability and target go to source point `source[i]`; one per-point vector
+    /// at a time, the row probabilities freed before the second.
+    fn fill(
+        self,
+        source: &[u32],
+        target: &[u32],
+        source_count: usize,
+        result: &mut RegistrationResult,
+    ) -> FinalModel {
         assert!(
-            rows.indexed() && rows.len() == self.row_probabilities.len(),
+            source.len() == self.row_probabilities.len() && target.len() == source.len(),
             "per-point results spread from rows other than the final evaluation's"
         );
-        let source_count = problem.source_count();
-        // One per-point vector at a time, the row probabilities freed before the second.
         let mut probabilities = vec![0.0; source_count];
-        for (&s, &p) in rows.source.iter().zip(&self.row_probabilities) {
+        for (&s, &p) in source.iter().zip(&self.row_probabilities) {
             probabilities[s as usize] = p;
         }
         drop(self.row_probabilities);
         let mut correspondences = vec![-1i64; source_count];
-        for (&s, &t) in rows.source.iter().zip(&rows.target) {
+        for (&s, &t) in source.iter().zip(target) {
             correspondences[s as usize] = i64::from(t);
         }
         result.probabilities = probabilities;

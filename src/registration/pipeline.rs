@@ -234,6 +234,8 @@ struct BestOfStarts {
     ends: Vec<(Matrix4<f64>, f64, f64)>,
     /// Number of the next update (the runs are numbered on).
     next_iteration: u32,
+    /// The median row scale at the last offer (the units `moved_apart` compares poses in).
+    typical_scale: f64,
     starts_run: u32,
     /// Every start's trace entries, in the order they ran (the result reports all updates).
     trace: Vec<TraceEntry>,
@@ -249,12 +251,6 @@ struct Best {
     parked: bool,
 }
 
-/// A run's per-point results as offered: already in its result, or pending.
-enum PerPoint {
-    Spread(FinalModel),
-    Pending(PendingPerPoint),
-}
-
 impl BestOfStarts {
     fn new(evidence: Evidence) -> Self {
         BestOfStarts {
@@ -262,6 +258,7 @@ impl BestOfStarts {
             best: None,
             ends: Vec::new(),
             next_iteration: 1,
+            typical_scale: 1.0,
             starts_run: 0,
             trace: Vec::new(),
         }
@@ -273,15 +270,17 @@ impl BestOfStarts {
     /// more starts.
     fn offer(
         &mut self,
-        problem: &dyn Problem,
+        problem: &mut dyn Problem,
         mut result: RegistrationResult,
-        per_point: Option<PerPoint>,
+        pending: Option<PendingPerPoint>,
         start: StartKind,
     ) -> bool {
         self.starts_run += 1;
         self.next_iteration = result.iterations + 1;
         self.trace.append(&mut result.trace);
         let cluster = self.evidence.assess(problem, &mut result);
+        // Before the rows may be taken below; `finish` compares poses in these units.
+        self.typical_scale = problem.rows().scale.median();
         let significance = cluster.significance;
         let precision = fitted_sigma(&result) * (6.0 / (cluster.count.max(1) as f64)).sqrt();
         self.ends.push((result.transform, significance, precision));
@@ -306,19 +305,15 @@ impl BestOfStarts {
                             .iter()
                             .find(|end| end.0 == best.transform)
                             .map_or(precision, |end| end.2);
-                        let typical_scale = problem.rows().scale.median();
                         let apart = moved_apart(problem.probe_points(), &best.transform, &result.transform)
-                            / typical_scale;
+                            / self.typical_scale;
                         apart > SAME_POSE_ERRORS * precision.max(best_precision)
                     })
             }
         };
         if cancelled || replaces {
             self.best = None;
-            let model = per_point.map(|per_point| match per_point {
-                PerPoint::Spread(model) => model,
-                PerPoint::Pending(pending) => pending.spread(problem, &mut result),
-            });
+            let model = pending.map(|pending| pending.spread_last(problem, &mut result));
             self.best = Some(Best {
                 significance,
                 result,
@@ -344,6 +339,7 @@ impl BestOfStarts {
     /// the same pose (within a few standard errors of either), and the significance of the best
     /// one that did not.
     fn finish(self, problem: &mut dyn Problem) -> RegistrationResult {
+        let typical_scale = self.typical_scale;
         let Best {
             mut result,
             model,
@@ -354,7 +350,6 @@ impl BestOfStarts {
         result.trace = self.trace;
         result.search.starts_run = self.starts_run;
         let (mut agreeing, mut runner_up) = (0, 0.0f64);
-        let typical_scale = problem.rows().scale.median();
         for (transform, significance, precision) in &self.ends {
             let apart = moved_apart(problem.probe_points(), &result.transform, transform) / typical_scale;
             let best_precision = self
@@ -378,7 +373,7 @@ impl BestOfStarts {
         result.quality.verdict = verdict(&result);
         // Last: the rows the agreement above was measured with are the last start's.
         if let Some(model) = model.filter(|_| parked) {
-            model.evaluate_again(problem).spread(problem, &mut result);
+            model.evaluate_again(problem).spread_last(problem, &mut result);
         }
         result
     }
@@ -909,12 +904,7 @@ fn register_from_starts(
                 problem.set_run_kind(RunKind::Registration);
                 let (mut led, pending) = led?;
                 if led.stop_reason == StopReason::Cancelled {
-                    best.offer(
-                        problem,
-                        led,
-                        Some(PerPoint::Pending(pending)),
-                        StartKind::ScaleFreeLead,
-                    );
+                    best.offer(problem, led, Some(pending), StartKind::ScaleFreeLead);
                     break;
                 }
                 best.next_iteration = led.iterations + 1;
@@ -931,7 +921,7 @@ fn register_from_starts(
             initial_beta: (start.beta_fraction < 1.0).then(|| start.beta_fraction * rms(problem)),
             ..config.clone()
         };
-        let (mut result, pending) = run_pending(
+        let (result, pending) = run_pending(
             problem,
             from,
             best.next_iteration,
@@ -948,15 +938,11 @@ fn register_from_starts(
         // 100-frame odometry run from constant-velocity guesses was UNSUPPORTED). The first
         // start's result shifted by 10σ shows one; the wider of the two backgrounds judges
         // every start.
-        let per_point = if best.starts_run == 0 {
-            // Nothing to replace yet; spread before the evidence moves the rows.
-            let model = pending.spread(problem, &mut result);
+        if best.starts_run == 0 {
+            // Leaves the rows at the result: the final evaluation's again, bit for bit.
             best.evidence.widen_around(problem, &result);
-            PerPoint::Spread(model)
-        } else {
-            PerPoint::Pending(pending)
-        };
-        if !best.offer(problem, result, Some(per_point), kind) || stayed {
+        }
+        if !best.offer(problem, result, Some(pending), kind) || stayed {
             break;
         }
     }

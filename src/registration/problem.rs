@@ -101,11 +101,6 @@ impl Rows {
         self.count == 0
     }
 
-    /// Whether `source` and `target` name each row's points.
-    pub fn indexed(&self) -> bool {
-        self.source.len() == self.count && self.target.len() == self.count
-    }
-
     fn clear(&mut self) {
         self.count = 0;
         self.source.clear();
@@ -158,6 +153,13 @@ pub trait Problem {
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64;
     /// Rows for every source point (no sampling) at `transform`, for the reported results.
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows;
+    /// The last rows' source and target indices, for their last reader. ICP takes them and
+    /// frees the rows (empty until the next linearise or evaluation); fixed correspondences,
+    /// whose rows are built once and reused, give copies.
+    fn take_row_indices(&mut self) -> (Vec<u32>, Vec<u32>) {
+        let rows = self.rows();
+        (rows.source.clone(), rows.target.clone())
+    }
     /// Told before each `linearise` whether β is being annealed: ICP then matches only a
     /// coarse subset of large samples. No-op by default.
     fn set_annealing(&mut self, _annealing: bool) {}
@@ -829,6 +831,18 @@ impl Problem for CloudProblem<'_> {
             old,
             new,
         )
+    }
+
+    fn take_row_indices(&mut self) -> (Vec<u32>, Vec<u32>) {
+        let rows = &mut self.rows;
+        let indices = (std::mem::take(&mut rows.source), std::mem::take(&mut rows.target));
+        rows.clear();
+        rows.residual = Vec::new();
+        rows.scale = match &rows.scale {
+            RowScales::Unit => RowScales::Unit,
+            RowScales::PerRow(_) => RowScales::PerRow(Vec::new()),
+        };
+        indices
     }
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
