@@ -89,11 +89,11 @@ const OVERHEAD: usize = 8 << 20;
 const CLOUD_OVERHEAD: usize = 2 << 20;
 
 /// Peak heap of `register_clouds` (ICP) beyond its inputs. Measured (tests/peak_memory.rs, 6 k
-/// to 60 k points, per-point noise scales, non-finite points skipped): at most 192 B per
-/// source and 139 B per target point (point-to-point or point-to-plane) and 0.5 MB fixed,
+/// to 60 k points, per-point noise scales, non-finite points skipped): at most 118 B per
+/// source and 124 B per target point (point-to-point or point-to-plane) and 0.5 MB fixed,
 /// bounded here with ~25 % margin.
 pub fn cloud_registration_bytes(source: usize, target: usize) -> usize {
-    linear(source, 240, CLOUD_OVERHEAD).saturating_add(target.saturating_mul(176))
+    linear(source, 150, CLOUD_OVERHEAD).saturating_add(target.saturating_mul(155))
 }
 
 /// Peak heap of `register_correspondences` beyond its inputs (measured at most 165 B a pair).
