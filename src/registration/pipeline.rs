@@ -791,15 +791,18 @@ fn register_cloud_problem(
     let sie = config.cost == CostFunction::Sie && config.initial_beta.is_none();
     let mut warm_run = None;
     if let Some(warm) = config.warm_start.filter(|_| sie) {
-        let mut result = run(problem, init, 1, config, observer.as_deref_mut())?;
+        let (mut result, pending) = run_pending(problem, init, 1, config, observer.as_deref_mut())?;
         result.search.start = StartKind::WarmStart;
         let typical_scale = problem.rows().scale.median();
         let moved = moved_apart(problem.probe_points(), &init, &result.transform) / typical_scale;
         if result.stop_reason == StopReason::Cancelled || warm_model_held(&warm, &result, moved) {
             let evidence = Evidence::around(problem, &result);
             judged_alone(&evidence, problem, &mut result);
+            // `around` left the rows at the result: the final evaluation's, bit for bit.
+            pending.spread_last(problem, &mut result);
             return Ok(result);
         }
+        // Only its trace and update count go on: no per-point results are built for it.
         warm_run = Some(result);
     }
     // Without a warm start, or after one whose model did not hold: the updates are numbered on.
@@ -812,12 +815,14 @@ fn register_cloud_problem(
         register_from_starts(problem, init, first_iteration, &cold, observer)?
     } else {
         let mut evidence = Evidence::of_clouds(problem, &init);
-        let mut result = run(problem, init, first_iteration, &cold, observer)?;
+        let (mut result, pending) = run_pending(problem, init, first_iteration, &cold, observer)?;
         // As for the first of several starts (`register_from_starts`); a baseline has no σ.
+        // Either way the rows are the final evaluation's (again) after this.
         if config.cost == CostFunction::Sie {
             evidence.widen_around(problem, &result);
         }
         judged_alone(&evidence, problem, &mut result);
+        pending.spread_last(problem, &mut result);
         result
     };
     if let Some(mut warm_run) = warm_run {
