@@ -663,11 +663,7 @@ pub fn register_clouds_to(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
-    let started = Instant::now();
-    config.validate()?;
-    let mut result = register_to_prepared(Cow::Borrowed(source), target, init, config, hooks, 0.0)?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    register_source_to(Cow::Borrowed(source), target, init, config, hooks)
 }
 
 /// `register_clouds_to` on a source the caller hands over (the C ABI's copy), dropped once the
@@ -679,9 +675,20 @@ pub(crate) fn register_owned_to(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
+    register_source_to(Cow::Owned(source), target, init, config, hooks)
+}
+
+/// `register_clouds_to` on a borrowed or owned source, timed.
+fn register_source_to(
+    source: Cow<'_, [Point]>,
+    target: &PreparedTarget,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
-    let mut result = register_to_prepared(Cow::Owned(source), target, init, config, hooks, 0.0)?;
+    let mut result = register_to_prepared(source, target, init, config, hooks, 0.0)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
