@@ -658,7 +658,8 @@ typedef struct sie_model {
      */
     double mu;
     /**
-     * Fitted inlier sigma.
+     * Fitted inlier sigma. Every field is finite: a model too wide for the residuals' unit
+     * (residuals near DBL_MAX) saturates at +-DBL_MAX.
      */
     double sigma;
     /**

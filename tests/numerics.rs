@@ -4,7 +4,7 @@
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
-    CloudRole, Error, HistogramMode, Hooks, Metric, NoiseScales, Point, RegistrationConfig,
+    CloudRole, Error, HistogramMode, Hooks, Metric, NoiseScales, NoiseShape, Point, RegistrationConfig,
     RegistrationResult, SieOptions, StopReason, estimate_inliers, register_clouds, register_correspondences,
 };
 
@@ -307,5 +307,56 @@ fn estimate_inliers_degenerate_inputs() {
             "{histogram:?}: {:?}",
             &estimate.probabilities[..3]
         );
+    }
+}
+
+/// A few samples near the top of f64 (the fuzzer's case: eleven copies of -1.486e306 and one
+/// 1e-296): the range refits can widen σ past every sample, so far that σ times the unit the
+/// residuals were fitted in overflows. Every field must stay finite in the caller's unit.
+#[test]
+fn estimate_inliers_few_samples_near_the_top_of_f64() {
+    for (big, small) in [
+        (-1.486e306, 1.2e-296),
+        (1.7e308, 0.0),
+        (-9e307, 3.0),
+        (1e300, -1e-300),
+    ] {
+        let mut residuals = vec![big; 11];
+        residuals.push(small);
+        for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
+            for shape_exponent in [
+                NoiseShape::Fixed(2.0),
+                NoiseShape::Fixed(1.0),
+                NoiseShape::Estimated,
+            ] {
+                for beta in [0.0, 0.05] {
+                    let options = SieOptions {
+                        histogram,
+                        shape_exponent,
+                        ..SieOptions::default()
+                    };
+                    let case = format!("{big:e}/{small:e} {histogram:?} {shape_exponent:?} beta {beta}");
+                    let estimate = estimate_inliers(&residuals, 1, None, beta, &options).unwrap();
+                    assert!(
+                        estimate.probabilities.iter().all(|p| (0.0..=1.0).contains(p)),
+                        "{case}"
+                    );
+                    let model = &estimate.models[0];
+                    let fields = [
+                        model.inlier.mu,
+                        model.inlier.sigma,
+                        model.inlier.alpha,
+                        model.beta,
+                        model.lo,
+                        model.hi,
+                    ];
+                    assert!(fields.iter().all(|v| v.is_finite()), "{case}: {model:?}");
+                    assert!(
+                        model.lo <= model.inlier.mu && model.inlier.mu <= model.hi,
+                        "{case}: {model:?}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -367,7 +367,8 @@ pub struct sie_summary {
 pub struct sie_model {
     /// Centre of the inlier model (0 for pooled |r| histograms).
     pub mu: f64,
-    /// Fitted inlier sigma.
+    /// Fitted inlier sigma. Every field is finite: a model too wide for the residuals' unit
+    /// (residuals near DBL_MAX) saturates at +-DBL_MAX.
     pub sigma: f64,
     /// Model height at the peak, in counts per bin.
     pub alpha: f64,

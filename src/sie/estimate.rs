@@ -82,12 +82,15 @@ pub fn estimate_inliers(
     let mut probabilities = vec![0.0; rows];
     let prior = sie.probabilities(&normalised, cols, &mut probabilities);
     let mut models = sie.models().to_vec();
+    // Back in the caller's unit. A model of residuals near ±f64::MAX may not fit in it (on a few
+    // samples the range refits can widen σ far past them): it saturates instead of turning ∞.
+    let in_caller_unit = |value: f64| (value * unit).clamp(-f64::MAX, f64::MAX);
     for model in &mut models {
-        model.inlier.sigma *= unit;
-        model.inlier.mu *= unit;
-        model.beta *= unit;
-        model.lo *= unit;
-        model.hi *= unit;
+        model.inlier.sigma = in_caller_unit(model.inlier.sigma);
+        model.inlier.mu = in_caller_unit(model.inlier.mu);
+        model.beta = in_caller_unit(model.beta);
+        model.lo = in_caller_unit(model.lo);
+        model.hi = in_caller_unit(model.hi);
     }
     Ok(InlierEstimate {
         probabilities,
