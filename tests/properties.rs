@@ -37,8 +37,19 @@ fn options(pooled: bool, shape: u8) -> SieOptions {
     }
 }
 
+/// `cases` cases from a fixed seed: the same inputs on every run, so CI cannot fail at random
+/// (proptest's default seed is new each run; a failure found that way is kept in
+/// properties.proptest-regressions and replayed first).
+fn fixed_cases(cases: u32) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x5e1e_2026),
+        ..ProptestConfig::default()
+    }
+}
+
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
+    #![proptest_config(fixed_cases(64))]
 
     /// Any finite residual matrix (any scale, ties, one or many columns) gives probabilities
     /// in [0, 1] and a finite model.
@@ -76,7 +87,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 24, .. ProptestConfig::default() })]
+    #![proptest_config(fixed_cases(24))]
 
     /// Whatever the data and the cost, the transform is a proper rotation (det +1,
     /// orthonormal to 1e-9) with last row 0 0 0 1.
@@ -111,10 +122,15 @@ fn moved(points: &[Point], g: &Matrix4<f64>) -> Vec<Point> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 8, .. ProptestConfig::default() })]
+    #![proptest_config(fixed_cases(8))]
 
     /// Expressing both clouds in another frame G gives T' = G·T·G⁻¹ (point-to-plane ICP: the
-    /// plane distance and PCA normals do not depend on the frame).
+    /// plane distance and PCA normals do not depend on the frame). Up to rounding, which
+    /// usually leaves 1e-8 (40 random frames: at most 4e-8); but rounding can tip one of the
+    /// fit's discrete choices (which bin a residual falls in, which match is cached), and then
+    /// the fitted σ and the IRLS fixed point move a little (the replayed case: σ 1.4 % apart,
+    /// the transforms 2.2e-5, 5 % of the pose's statistical precision σ/√n). Hence the bound:
+    /// a quarter of that precision.
     #[test]
     fn point_to_plane_icp_follows_a_change_of_frame(
         angles in prop::array::uniform3(-3.0..3.0f64),
@@ -128,9 +144,12 @@ proptest! {
         let (source, target) = (moved(&scene.source, &g), moved(&scene.target, &g));
         // The initial guess follows the frame change too (identity becomes G·I·G⁻¹ = I).
         let there = register_clouds(&source, &target, None, None, &config, Hooks::default()).unwrap();
-        let expected = g * here.transform * g.try_inverse().unwrap();
-        let error = (there.transform - expected).abs().max();
-        prop_assert!(error < 1e-6, "frame change moved the result by {error}");
+        // Compared back in the scene's frame: G's lever arm (up to 170 m) would turn a rotation
+        // difference far inside the precision into a translation difference outside it.
+        let back = g.try_inverse().unwrap() * there.transform * g;
+        let error = (back - here.transform).abs().max();
+        let precision = here.sigma[0] / (scene.source.len() as f64).sqrt();
+        prop_assert!(error < 0.25 * precision, "frame change moved the result by {error} (precision {precision})");
         prop_assert_eq!(here.stop_reason, there.stop_reason);
     }
 
@@ -171,7 +190,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 32, .. ProptestConfig::default() })]
+    #![proptest_config(fixed_cases(32))]
 
     /// The paper's protocol with 1000 outliers, beyond its one-axis grid: a rotation up to π
     /// about any axis combined with a translation up to 1 in any direction. SIE with no

@@ -400,17 +400,19 @@ struct Pass {
     /// `source[order[k]]`: a copy in pass order, so each iteration reads the points
     /// sequentially instead of once per cache line at random (1 M points: 24 MB).
     points: Vec<Point>,
+    /// Allocated at the pass's first matching: the everything pass of a sampled source is
+    /// built while the caller's source still exists, and its 8 bytes a point would otherwise
+    /// add to that moment's peak (at 10 M points, the registration's peak).
     matches: Vec<Match>,
 }
 
 impl Pass {
     fn new(source: &[Point], order: Vec<u32>) -> Self {
         let points = order.iter().map(|&i| source[i as usize]).collect();
-        let matches = vec![Match::EMPTY; order.len()];
         Pass {
             order,
             points,
-            matches,
+            matches: Vec::new(),
         }
     }
 }
@@ -580,6 +582,7 @@ impl<'a> CloudProblem<'a> {
         moves.extend(self.history.iter().map(|old| transform - old));
         self.history.push(*transform);
         let mut pass = std::mem::take(self.pass_mut(which));
+        pass.matches.resize(pass.order.len(), Match::EMPTY);
         self.match_pass(transform, &mut pass, &moves, generation);
         self.moves = moves;
         if self.typical_margin == f64::INFINITY {
