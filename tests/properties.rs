@@ -126,11 +126,11 @@ proptest! {
 
     /// Expressing both clouds in another frame G gives T' = G·T·G⁻¹ (point-to-plane ICP: the
     /// plane distance and PCA normals do not depend on the frame). Up to rounding, which
-    /// usually leaves 1e-8 (40 random frames: at most 4e-8); but rounding can tip one of the
-    /// fit's discrete choices (which bin a residual falls in, which match is cached), and then
-    /// the fitted σ and the IRLS fixed point move a little (the replayed case: σ 1.4 % apart,
-    /// the transforms 2.2e-5, 5 % of the pose's statistical precision σ/√n). Hence the bound:
-    /// a quarter of that precision.
+    /// usually leaves 1e-8 (40 random frames: at most 4e-8 in G's frame); but rounding can
+    /// tip one of the fit's discrete choices (which bin a residual falls in, which match is
+    /// cached), and then the fitted σ and the IRLS fixed point move a little (the replayed
+    /// case: σ 1.4 % apart, the transforms 2.2e-5, 5 % of the pose's statistical precision
+    /// σ/√n). Hence the bound: a quarter of that precision.
     #[test]
     fn point_to_plane_icp_follows_a_change_of_frame(
         angles in prop::array::uniform3(-3.0..3.0f64),
