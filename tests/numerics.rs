@@ -360,3 +360,51 @@ fn estimate_inliers_few_samples_near_the_top_of_f64() {
         }
     }
 }
+
+/// A dozen residuals: the fitted σ stays within a few spreads of the samples. The histogram
+/// sits at its 50-bin floor and holds every sample, so its smoothing kernel (capped at a sixth
+/// of the range) widened σ, and every range refit widened the range and the kernel with it:
+/// eleven residuals of -1 and one 0 gave σ ≈ 3 900 (pooled |r|, p = 1) and 320 (per column,
+/// p = 2) with a peak reported found.
+#[test]
+fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
+    let cases: [(&str, Vec<f64>); 3] = [
+        ("eleven -1 and one 0", [vec![-1.0; 11], vec![0.0]].concat()),
+        (
+            "twelve evenly spread",
+            (0..12).map(|i| f64::from(i) / 11.0 - 0.5).collect(),
+        ),
+        (
+            "ten near 0, two at 3",
+            [
+                vec![0.01, -0.02, 0.015, -0.01, 0.0, 0.02, -0.015, 0.005, -0.005, 0.01],
+                vec![3.0, -3.0],
+            ]
+            .concat(),
+        ),
+    ];
+    for (name, residuals) in &cases {
+        let reach = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+        for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
+            for shape_exponent in [
+                NoiseShape::Fixed(2.0),
+                NoiseShape::Fixed(1.0),
+                NoiseShape::Estimated,
+            ] {
+                let options = SieOptions {
+                    histogram,
+                    shape_exponent,
+                    ..SieOptions::default()
+                };
+                let estimate = estimate_inliers(residuals, 1, None, 0.0, &options).unwrap();
+                let sigma = estimate.models[0].inlier.sigma;
+                // Measured with the fix: at most 11.6× (p = 1, one histogram per column, where σ
+                // is a Laplace scale); without it up to 1.6e7×.
+                assert!(
+                    sigma.is_finite() && sigma <= 16.0 * reach,
+                    "{name}, {histogram:?}, {shape_exponent:?}: σ = {sigma} for residuals within {reach}"
+                );
+            }
+        }
+    }
+}
