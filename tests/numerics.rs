@@ -365,7 +365,7 @@ fn estimate_inliers_few_samples_near_the_top_of_f64() {
 /// sits at its 50-bin floor and holds every sample, so its smoothing kernel (capped at a sixth
 /// of the range) widened σ, and every range refit widened the range and the kernel with it:
 /// eleven residuals of -1 and one 0 gave σ ≈ 3 900 (pooled |r|, p = 1) and 320 (per column,
-/// p = 2) with a peak reported found.
+/// p = 2).
 #[test]
 fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
     let cases: [(&str, Vec<f64>); 3] = [
@@ -399,7 +399,7 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
                 let estimate = estimate_inliers(residuals, 1, None, 0.0, &options).unwrap();
                 let sigma = estimate.models[0].inlier.sigma;
                 // Measured with the fix: at most 11.6× (p = 1, one histogram per column, where σ
-                // is a Laplace scale); without it up to 1.6e7×.
+                // is a Laplace scale); without it up to 2.6e7×.
                 assert!(
                     sigma.is_finite() && sigma <= 16.0 * reach,
                     "{name}, {histogram:?}, {shape_exponent:?}: σ = {sigma} for residuals within {reach}"
