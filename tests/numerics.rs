@@ -361,18 +361,32 @@ fn estimate_inliers_few_samples_near_the_top_of_f64() {
     }
 }
 
-/// A dozen residuals: the fitted σ stays within a few spreads of the samples. The histogram
-/// sits at its 50-bin floor and holds every sample, so its smoothing kernel (capped at a sixth
-/// of the range) widened σ, and every range refit widened the range and the kernel with it:
-/// eleven residuals of -1 and one 0 gave σ ≈ 3 900 (pooled |r|, p = 1) and 320 (per column,
-/// p = 2).
+/// A dozen (or seventy) residuals: the fitted σ stays within the inlier cluster's spread and
+/// outliers at ±3 get no weight. The histogram sits at its 50-bin floor, so its smoothing
+/// kernel widens to average enough samples; that kernel widened σ, and every range refit
+/// widened the range and the kernel with it: eleven residuals of -1 and one 0 gave σ ≈ 3 900
+/// (pooled |r|, p = 1), and seventy within 0.02 with two at ±3 gave σ = 3 with both outliers at
+/// P = 0.99.
 #[test]
 fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
-    let cases: [(&str, Vec<f64>); 3] = [
-        ("eleven -1 and one 0", [vec![-1.0; 11], vec![0.0]].concat()),
+    // (name, residuals, reach of the inlier cluster, indices of the outliers)
+    let seventy_within = |half: f64| -> Vec<f64> {
+        (0..70)
+            .map(|i| half * (f64::from((i * 37) % 70) / 35.0 - 1.0))
+            .collect()
+    };
+    let cases: [(&str, Vec<f64>, f64, Vec<usize>); 4] = [
+        (
+            "eleven -1 and one 0",
+            [vec![-1.0; 11], vec![0.0]].concat(),
+            1.0,
+            vec![],
+        ),
         (
             "twelve evenly spread",
             (0..12).map(|i| f64::from(i) / 11.0 - 0.5).collect(),
+            0.5,
+            vec![],
         ),
         (
             "ten near 0, two at 3",
@@ -381,10 +395,17 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
                 vec![3.0, -3.0],
             ]
             .concat(),
+            0.02,
+            vec![10, 11],
+        ),
+        (
+            "seventy within 0.02, two at 3",
+            [seventy_within(0.02), vec![3.0, -3.0]].concat(),
+            0.02,
+            vec![70, 71],
         ),
     ];
-    for (name, residuals) in &cases {
-        let reach = residuals.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+    for (name, residuals, reach, outliers) in &cases {
         for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
             for shape_exponent in [
                 NoiseShape::Fixed(2.0),
@@ -398,11 +419,20 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
                 };
                 let estimate = estimate_inliers(residuals, 1, None, 0.0, &options).unwrap();
                 let sigma = estimate.models[0].inlier.sigma;
-                // Measured with the fix: at most 11.6× (p = 1, one histogram per column, where σ
-                // is a Laplace scale); without it up to 2.6e7×.
+                let worst_outlier = outliers
+                    .iter()
+                    .map(|&i| estimate.probabilities[i])
+                    .fold(0.0f64, f64::max);
+                // Measured: at most 1.4× the cluster's reach; before the smoothing kernel was
+                // capped at half the model width up to 150× (σ = 3 from two outliers at ±3),
+                // and before range refits stopped widening a full histogram up to 2.6e7×.
                 assert!(
-                    sigma.is_finite() && sigma <= 16.0 * reach,
-                    "{name}, {histogram:?}, {shape_exponent:?}: σ = {sigma} for residuals within {reach}"
+                    sigma.is_finite() && sigma <= 2.0 * reach,
+                    "{name}, {histogram:?}, {shape_exponent:?}: σ = {sigma} for a cluster within {reach}"
+                );
+                assert!(
+                    worst_outlier < 0.01,
+                    "{name}, {histogram:?}, {shape_exponent:?}: an outlier at ±3 has P = {worst_outlier}"
                 );
             }
         }
