@@ -367,3 +367,70 @@ fn noise_after_a_warm_start_is_not_good() {
         assert_ne!(result.quality.verdict, Verdict::Good, "{:?}", result.quality);
     }
 }
+
+/// β levels the first run of a traced registration went through (its annealing updates before
+/// its first final-round update).
+fn first_run_levels(result: &RegistrationResult) -> usize {
+    let mut levels: Vec<f64> = Vec::new();
+    for entry in result.trace.iter().take_while(|e| e.annealing) {
+        if levels.last() != Some(&entry.beta) {
+            levels.push(entry.beta);
+        }
+    }
+    levels.len()
+}
+
+/// A warm start whose first level finds the guess where the previous model expects it goes to
+/// the final round at once; a guess several σ off keeps the levels between. Both end right.
+#[test]
+fn a_warm_start_skips_the_levels_only_when_its_guess_held() {
+    let truth = trajectory();
+    let config = RegistrationConfig {
+        threads: 1,
+        ..RegistrationConfig::default()
+    };
+    let options = PrepareOptions::from_config(&config);
+    let previous_target = PreparedTarget::new(&truth.frames[4], None, &options).unwrap();
+    let previous = register_clouds_to(
+        &truth.frames[5],
+        &previous_target,
+        None,
+        &config,
+        Hooks::default(),
+    )
+    .unwrap();
+    let warm = WarmStart::of(&previous).expect("an SIE result has a noise model");
+    let target = PreparedTarget::new(&truth.frames[5], None, &options).unwrap();
+    let true_motion = truth.poses[5].try_inverse().unwrap() * truth.poses[6];
+    let config = RegistrationConfig {
+        warm_start: Some(warm),
+        record_trace: true,
+        ..config
+    };
+    // σ = 1 cm: the truth itself moves the rows by less than the first level's width σ+β = 3σ;
+    // a guess 4 cm off along x moves them by more (measured: 1 and 3 levels; without the rule
+    // 3 levels and 11–12 updates each).
+    let off = from_parts(&nalgebra::Matrix3::identity(), &Vector3::new(0.04, 0.0, 0.0));
+    for (name, guess, skips) in [("truth", true_motion, true), ("4σ off", true_motion * off, false)] {
+        let result =
+            register_clouds_to(&truth.frames[6], &target, Some(&guess), &config, Hooks::default()).unwrap();
+        let error = motion_error(&truth, 6, &result.transform);
+        let levels = first_run_levels(&result);
+        println!(
+            "{name}: {:.4}° {:.2} mm, {levels} levels, {} updates, {:?}, {:?}",
+            error.0,
+            error.1 * 1e3,
+            result.iterations,
+            result.search.start,
+            result.quality.verdict
+        );
+        assert!(error.0 < 0.1 && error.1 < 3e-3, "{name}: {error:?}");
+        assert_eq!(result.quality.verdict, Verdict::Good, "{name}");
+        if skips {
+            assert_eq!(levels, 1, "{name}");
+            assert_eq!(result.search.start, StartKind::WarmStart, "{name}");
+        } else {
+            assert!(levels >= 2, "{name}: {levels} levels");
+        }
+    }
+}

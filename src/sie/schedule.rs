@@ -98,6 +98,11 @@ pub const WARM_BETA_WIDTHS: f64 = 2.0;
 /// shape are already the data's (§4.5 adapts them after annealing only because a cold start
 /// cannot know them), so the levels far below σ that a cold start needs change nothing.
 const WARM_FINAL_RATIO: f64 = 0.5;
+/// A warm start whose first level moved the rows by at most this many model widths σ+β in all
+/// (β = 2σ there) found its guess where the previous noise model said it would be: the levels
+/// between only refine a pose the final round refines anyway, so it begins at once. A guess
+/// further off (the Kinect frames: 7–37σ) keeps every level.
+const WARM_HELD_WIDTHS: f64 = 1.0;
 
 /// How β starts and shrinks (§4.3).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -158,6 +163,10 @@ pub struct Schedule {
     precision_stop: PrecisionStop,
     phase: Phase,
     level_updates: u32,
+    /// Σ displacement of the current level's updates (normalised RMS).
+    level_motion: f64,
+    /// True until the first level ends.
+    first_level: bool,
     started: bool,
     /// Σ P(I|R_i) of the last update: the effective number of inlier rows.
     inlier_mass: f64,
@@ -171,6 +180,8 @@ impl Schedule {
             precision_stop,
             phase: Phase::Annealing,
             level_updates: 0,
+            level_motion: 0.0,
+            first_level: true,
             started: false,
             inlier_mass: 0.0,
         }
@@ -282,13 +293,19 @@ impl Schedule {
         match self.phase {
             Phase::Annealing => {
                 self.level_updates += 1;
+                self.level_motion += displacement;
                 if settled || self.level_updates >= MAX_LEVEL_UPDATES {
+                    let warm_guess_held = self.beta.warm.is_some()
+                        && self.first_level
+                        && self.level_motion <= WARM_HELD_WIDTHS * self.width();
                     self.level_updates = 0;
+                    self.level_motion = 0.0;
+                    self.first_level = false;
                     let stop_ratio = match self.beta.warm {
                         Some(_) => WARM_FINAL_RATIO,
                         None => self.beta.stop_ratio,
                     };
-                    if self.estimator.beta_negligible(stop_ratio) {
+                    if warm_guess_held || self.estimator.beta_negligible(stop_ratio) {
                         self.phase = Phase::Final;
                         if self.beta.warm.is_some() {
                             self.estimator.set_beta(&[0.0]);
