@@ -103,7 +103,8 @@ pub struct RegistrationConfig {
     pub initial_beta: Option<f64>,
     /// SIE: start from a previous registration's noise model (`WarmStart::of`), for a
     /// sequence registered from good guesses. One run from the initial guess with β₀ = 2σ and
-    /// no levels far below σ; when it ends without the model holding (not converged, no inlier
+    /// no levels far below σ (none after the first when that one moved the rows by less than
+    /// the model's width); when it ends without the model holding (not converged, no inlier
     /// peak, σ more than doubled or the inlier fraction halved: the guess was bad), the
     /// registration runs as without it (`starts`). Ignored when `initial_beta` is set.
     pub warm_start: Option<WarmStart>,
