@@ -287,7 +287,8 @@ impl Schedule {
     /// Advances the schedule after an update. `below_tolerance`: the update was below the
     /// caller's tolerances; `displacement`: how far it moved the rows (normalised RMS). A level
     /// ends when the update is small against the model width σ+β (or after
-    /// MAX_LEVEL_UPDATES); β then shrinks (§4.3), and once β ≪ σ the final round begins.
+    /// MAX_LEVEL_UPDATES); β then shrinks (§4.3), and once β ≪ σ the final round begins (for a
+    /// warm start also after a first level that moved the rows by less than WARM_HELD_WIDTHS).
     pub fn after_update(&mut self, below_tolerance: bool, displacement: f64) -> Convergence {
         let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * self.width();
         match self.phase {
