@@ -116,7 +116,7 @@ pub unsafe extern "C" fn sie_context_set_starts(ctx: *mut sie_context, starts: u
 /// earlier SIE registration (`sie_context_get_summary`), or clears it (NULL). For sequences
 /// registered from good guesses (odometry with a constant-velocity guess, scan-to-map): one
 /// run from the initial guess with beta0 = 2 sigma and no annealing far below sigma, none at all
-/// when its first level finds the guess within the model's width (7.5 updates a frame against 19
+/// when its first level finds the guess within the model's width (6.6 updates a frame against 19
 /// cold in the sequence benchmark's room, the same drift). When that run shows the guess was bad (it did not
 /// converge, sigma more than doubled, the inlier fraction halved, or it travelled farther than
 /// the model could see), the registration runs as without a warm start, by itself
