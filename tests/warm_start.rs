@@ -112,27 +112,48 @@ fn warm_started_odometry_is_as_accurate_with_fewer_updates() {
     );
 }
 
-#[test]
-fn a_bad_guess_falls_back_to_the_full_search_and_ends_right() {
-    let truth = trajectory();
+/// The noise model of a right registration of frame `frame` onto `frame - 1`, the prepared
+/// frame `frame` as the next target, and the true motion of frame `frame + 1` onto it.
+struct NextFrame {
+    config: RegistrationConfig,
+    warm: WarmStart,
+    target: PreparedTarget,
+    true_motion: Matrix4<f64>,
+}
+
+fn next_frame(truth: &Trajectory, frame: usize) -> NextFrame {
     let config = RegistrationConfig {
         threads: 1,
         ..RegistrationConfig::default()
     };
     let options = PrepareOptions::from_config(&config);
-    // The model of a right registration of the previous pair.
-    let previous_target = PreparedTarget::new(&truth.frames[9], None, &options).unwrap();
+    let previous_target = PreparedTarget::new(&truth.frames[frame - 1], None, &options).unwrap();
     let previous = register_clouds_to(
-        &truth.frames[10],
+        &truth.frames[frame],
         &previous_target,
         None,
         &config,
         Hooks::default(),
     )
     .unwrap();
-    let warm = WarmStart::of(&previous).expect("an SIE result has a noise model");
-    let target = PreparedTarget::new(&truth.frames[10], None, &options).unwrap();
-    let true_motion = truth.poses[10].try_inverse().unwrap() * truth.poses[11];
+    NextFrame {
+        warm: WarmStart::of(&previous).expect("an SIE result has a noise model"),
+        target: PreparedTarget::new(&truth.frames[frame], None, &options).unwrap(),
+        true_motion: truth.poses[frame].try_inverse().unwrap() * truth.poses[frame + 1],
+        config,
+    }
+}
+
+#[test]
+fn a_bad_guess_falls_back_to_the_full_search_and_ends_right() {
+    let truth = trajectory();
+    // The model of a right registration of the previous pair.
+    let NextFrame {
+        config,
+        warm,
+        target,
+        true_motion,
+    } = next_frame(&truth, 10);
     // Guesses a jolt away from the truth (a dropped frame, a bump): 0.3 m, 20° about a tilted axis.
     for (angle, offset) in [
         (20f64, Vector3::new(0.3, -0.1, 0.05)),
@@ -385,23 +406,12 @@ fn first_run_levels(result: &RegistrationResult) -> usize {
 #[test]
 fn a_warm_start_skips_the_levels_only_when_its_guess_held() {
     let truth = trajectory();
-    let config = RegistrationConfig {
-        threads: 1,
-        ..RegistrationConfig::default()
-    };
-    let options = PrepareOptions::from_config(&config);
-    let previous_target = PreparedTarget::new(&truth.frames[4], None, &options).unwrap();
-    let previous = register_clouds_to(
-        &truth.frames[5],
-        &previous_target,
-        None,
-        &config,
-        Hooks::default(),
-    )
-    .unwrap();
-    let warm = WarmStart::of(&previous).expect("an SIE result has a noise model");
-    let target = PreparedTarget::new(&truth.frames[5], None, &options).unwrap();
-    let true_motion = truth.poses[5].try_inverse().unwrap() * truth.poses[6];
+    let NextFrame {
+        config,
+        warm,
+        target,
+        true_motion,
+    } = next_frame(&truth, 5);
     let config = RegistrationConfig {
         warm_start: Some(warm),
         record_trace: true,

@@ -299,16 +299,13 @@ impl Schedule {
             Phase::Annealing => {
                 self.level_updates += 1;
                 self.level_motion += displacement;
-                // A warm first level whose guess held only seeds the final round, which refines
-                // to the full tolerance anyway: it may end at a looser one.
-                let warm_first_settled = self.beta.warm.is_some()
+                let warm_guess_held = self.beta.warm.is_some()
                     && self.first_level
-                    && displacement <= WARM_HELD_TOLERANCE * self.width()
                     && self.level_motion <= WARM_HELD_WIDTHS * self.width();
-                if settled || warm_first_settled || self.level_updates >= MAX_LEVEL_UPDATES {
-                    let warm_guess_held = self.beta.warm.is_some()
-                        && self.first_level
-                        && self.level_motion <= WARM_HELD_WIDTHS * self.width();
+                // Such a first level only seeds the final round, which refines to the full
+                // tolerance anyway: it may end at a looser one.
+                let held_and_settled = warm_guess_held && displacement <= WARM_HELD_TOLERANCE * self.width();
+                if settled || held_and_settled || self.level_updates >= MAX_LEVEL_UPDATES {
                     self.level_updates = 0;
                     self.level_motion = 0.0;
                     self.first_level = false;
