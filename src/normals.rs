@@ -59,7 +59,7 @@ pub fn estimate_normals_at_data_scale(
     k: usize,
     workers: &Workers,
 ) -> (Vec<Point>, usize) {
-    let scale = NormalScale::choose(points, None, index, k);
+    let scale = NormalScale::choose(points, None, index, k, workers);
     (
         scale.normals_at(points, index, points, k, workers),
         scale.factor(),
@@ -83,11 +83,18 @@ impl NormalScale {
     /// balls inside the noise ([`BALL_NEIGHBOURHOOD_RATIO`]), and keeps at least 20·k points.
     /// `index` is built on `points`. `ids[i]` names point i for the thinning hash (default: i),
     /// so a reordered copy of a cloud is thinned to the same points.
-    pub fn choose(points: &[Point], ids: Option<&[u32]>, index: &NearestNeighbours, k: usize) -> Self {
+    /// The probes' neighbourhoods are measured on `workers`; the choice does not depend on them.
+    pub fn choose(
+        points: &[Point],
+        ids: Option<&[u32]>,
+        index: &NearestNeighbours,
+        k: usize,
+        workers: &Workers,
+    ) -> Self {
         let probes: Vec<Point> = (0..SCALE_PROBES.min(points.len()))
             .map(|j| points[j * points.len() / SCALE_PROBES.min(points.len())])
             .collect();
-        let mut ratio = median_thickness(&probes, points, index, k);
+        let mut ratio = median_thickness(&probes, points, index, k, workers);
         let mut chosen = NormalScale {
             factor: 1,
             thinned: None,
@@ -103,7 +110,7 @@ impl NormalScale {
             let Ok(thin_index) = NearestNeighbours::new(&thinned) else {
                 break;
             };
-            let thinner = median_thickness(&probes, &thinned, &thin_index, k);
+            let thinner = median_thickness(&probes, &thinned, &thin_index, k, workers);
             let improved = thinner <= 0.75 * trial_ratio && thinner < ratio;
             let in_ball = trial_ratio > BALL_NEIGHBOURHOOD_RATIO;
             trial_ratio = thinner;
@@ -156,16 +163,24 @@ fn thin(points: &[Point], ids: Option<&[u32]>, factor: usize) -> Vec<Point> {
 
 /// Median over the probes of λ_min / λ_mid of their k nearest points in `cloud` (∞ when no
 /// probe has a plane-like neighbourhood).
-fn median_thickness(probes: &[Point], cloud: &[Point], index: &NearestNeighbours, k: usize) -> f64 {
-    let mut neighbours = Vec::with_capacity(k);
-    let mut ratios: Vec<f64> = probes
-        .iter()
-        .filter_map(|p| {
-            index.nearest_k(p, k, &mut neighbours);
+fn median_thickness(
+    probes: &[Point],
+    cloud: &[Point],
+    index: &NearestNeighbours,
+    k: usize,
+    workers: &Workers,
+) -> f64 {
+    // None: no plane-like neighbourhood at that probe.
+    let mut ratios: Vec<Option<f64>> = vec![None; probes.len()];
+    workers.for_each_chunk_of(NORMALS_CHUNK, &mut ratios, |first, chunk| {
+        let mut neighbours = Vec::with_capacity(k);
+        for (offset, ratio) in chunk.iter_mut().enumerate() {
+            index.nearest_k(&probes[first + offset], k, &mut neighbours);
             let [smallest, middle, _] = eigenvalues_ascending(&covariance(cloud, &neighbours));
-            (middle > 0.0).then(|| smallest.max(0.0) / middle)
-        })
-        .collect();
+            *ratio = (middle > 0.0).then(|| smallest.max(0.0) / middle);
+        }
+    });
+    let mut ratios: Vec<f64> = ratios.into_iter().flatten().collect();
     if ratios.is_empty() {
         return f64::INFINITY;
     }
@@ -196,6 +211,12 @@ fn eigenvalues_ascending(a: &[[f64; 3]; 3]) -> [f64; 3] {
     [smallest, 3.0 * mean - largest - smallest, largest]
 }
 
+/// Normals per thread's work item: a normal costs about a microsecond (a k-NN query and a
+/// 3×3 eigenvector), so a second thread pays for itself from a few hundred of them, and the
+/// batches of targets a registration pass newly reaches are often that small. The normals do
+/// not depend on it.
+const NORMALS_CHUNK: usize = 256;
+
 /// Normal at each of `points` from its k nearest points of `cloud` (`index` is built on `cloud`).
 fn normals_from(
     points: &[Point],
@@ -205,7 +226,7 @@ fn normals_from(
     workers: &Workers,
 ) -> Vec<Point> {
     let mut normals = vec![[0.0; 3]; points.len()];
-    workers.for_each_chunk_mut(&mut normals, |first, chunk| {
+    workers.for_each_chunk_of(NORMALS_CHUNK, &mut normals, |first, chunk| {
         let mut neighbours = Vec::with_capacity(k);
         for (offset, normal) in chunk.iter_mut().enumerate() {
             let p = &points[first + offset];
@@ -501,7 +522,7 @@ mod tests {
         let noisy = noisy_plane(&mut rng, &normal, &[0.0, 0.0, -2.0], 200_000, 0.03);
         let index = NearestNeighbours::new(&noisy).unwrap();
         let probes: Vec<Point> = noisy.iter().step_by(400).copied().collect();
-        let plain_ratio = median_thickness(&probes, &noisy, &index, 10);
+        let plain_ratio = median_thickness(&probes, &noisy, &index, 10, &Workers::new(1).unwrap());
         assert!(
             plain_ratio > BALL_NEIGHBOURHOOD_RATIO,
             "plain ratio {plain_ratio}"

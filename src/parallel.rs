@@ -34,21 +34,34 @@ impl Workers {
     /// `threads` threads; when the system cannot start that many, on those it could (at least
     /// the caller's), with the same result.
     pub fn for_each_chunk_mut<T: Send>(&self, data: &mut [T], f: impl Fn(usize, &mut [T]) + Sync + Send) {
-        let chunks = data.len().div_ceil(CHUNK);
+        self.for_each_chunk_of(CHUNK, data, f);
+    }
+
+    /// [`Workers::for_each_chunk_mut`] with `chunk`-sized pieces: for work whose result does not
+    /// depend on the chunking (no per-chunk reduction) and whose items are costly enough that a
+    /// few hundred of them are worth a thread.
+    pub fn for_each_chunk_of<T: Send>(
+        &self,
+        chunk: usize,
+        data: &mut [T],
+        f: impl Fn(usize, &mut [T]) + Sync + Send,
+    ) {
+        let chunk = chunk.max(1);
+        let chunks = data.len().div_ceil(chunk);
         let threads = self.threads.min(chunks);
         if threads <= 1 {
-            data.chunks_mut(CHUNK)
+            data.chunks_mut(chunk)
                 .enumerate()
-                .for_each(|(c, chunk)| f(c * CHUNK, chunk));
+                .for_each(|(c, piece)| f(c * chunk, piece));
             return;
         }
         // Threads take the next chunk from a shared queue, so uneven chunks balance out.
-        let queue = Mutex::new(data.chunks_mut(CHUNK).enumerate());
+        let queue = Mutex::new(data.chunks_mut(chunk).enumerate());
         let work = || {
             loop {
                 let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
-                let Some((c, chunk)) = next else { break };
-                f(c * CHUNK, chunk);
+                let Some((c, piece)) = next else { break };
+                f(c * chunk, piece);
             }
         };
         std::thread::scope(|scope| {
@@ -87,6 +100,18 @@ mod tests {
                 data.iter().enumerate().all(|(i, v)| *v == i + 1),
                 "{threads} threads"
             );
+            for chunk in [0, 1, 7, 256] {
+                let mut data = vec![0usize; 1000];
+                workers.for_each_chunk_of(chunk, &mut data, |start, piece| {
+                    for (k, v) in piece.iter_mut().enumerate() {
+                        *v += start + k + 1;
+                    }
+                });
+                assert!(
+                    data.iter().enumerate().all(|(i, v)| *v == i + 1),
+                    "{threads} threads, chunks of {chunk}"
+                );
+            }
         }
     }
 }

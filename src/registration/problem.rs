@@ -520,7 +520,7 @@ impl<'a> CloudProblem<'a> {
             ));
         }
         let normals_seconds = match config.metric {
-            Metric::PointToPlane => target.prepare_normal_estimation(),
+            Metric::PointToPlane => target.prepare_normal_estimation(&workers),
             Metric::PointToPoint => 0.0,
         };
         let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);

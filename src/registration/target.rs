@@ -376,14 +376,14 @@ impl PreparedTarget {
 
     /// Sets up normal estimation (chooses the neighbourhood scale) if no registration has yet;
     /// returns the seconds this call spent on it.
-    pub(crate) fn prepare_normal_estimation(&self) -> f64 {
+    pub(crate) fn prepare_normal_estimation(&self, workers: &Workers) -> f64 {
         let started = Instant::now();
         if let TargetNormals::Estimated(cell) = &self.normals {
             cell.get_or_init(|| {
                 let n = self.points.len();
                 let k = self.normal_neighbours.min(n);
                 EstimatedNormals::new(
-                    NormalScale::choose(&self.points, Some(&self.order), &self.index, k),
+                    NormalScale::choose(&self.points, Some(&self.order), &self.index, k, workers),
                     n,
                 )
             });
@@ -394,7 +394,7 @@ impl PreparedTarget {
     /// Estimates the normals of `targets` (curve-order indices, repeats allowed) that are not
     /// known yet. Needs `prepare_normal_estimation` first; a no-op for given normals.
     pub(crate) fn ensure_normals(&self, targets: impl Iterator<Item = u32>, workers: &Workers) {
-        self.prepare_normal_estimation();
+        self.prepare_normal_estimation(workers);
         let TargetNormals::Estimated(cell) = &self.normals else {
             return;
         };
