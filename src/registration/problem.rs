@@ -605,7 +605,10 @@ impl<'a> CloudProblem<'a> {
         moves.extend(self.history.iter().map(|old| transform - old));
         self.history.push(*transform);
         let mut pass = std::mem::take(self.pass_mut(which));
-        pass.matches.resize(pass.order.len(), Match::EMPTY);
+        if pass.matches.is_empty() {
+            pass.matches.resize(pass.order.len(), Match::EMPTY);
+            self.share_queries_into(which, &mut pass);
+        }
         self.match_pass(transform, &mut pass, &moves, generation);
         self.moves = moves;
         if self.typical_margin == f64::INFINITY {
@@ -622,6 +625,55 @@ impl<'a> CloudProblem<'a> {
             self.linearised = *transform;
         }
         *self.pass_mut(which) = pass;
+    }
+
+    /// A pass matched for the first time starts from the queries the other passes already
+    /// made for the same source points (the coarse subset's, when the final round first
+    /// matches the sample; the evidence subset's, when the first update matches the coarse
+    /// subset at the same initial guess). The history is shared, so each copied query keeps its
+    /// exact skip test: the matches are the same as from fresh queries, only cheaper.
+    fn share_queries_into(&self, which: Which, pass: &mut Pass) {
+        // The sample is the parent: coarse and evidence are subsequences of it (same order).
+        if which == Which::Everything {
+            return;
+        }
+        let parent = if which == Which::Sample {
+            &pass.order
+        } else {
+            &self.sample.order
+        };
+        let others: Vec<&Pass> = [Which::Sample, Which::Coarse, Which::Evidence]
+            .into_iter()
+            .filter(|&w| w != which)
+            .map(|w| self.pass(w))
+            .filter(|p| !p.matches.is_empty())
+            .collect();
+        if others.is_empty() {
+            return;
+        }
+        let mut next_in_other = vec![0usize; others.len()];
+        let mut next_in_pass = 0usize;
+        for &point in parent {
+            let in_pass = pass.order.get(next_in_pass) == Some(&point);
+            for (other, next) in others.iter().zip(next_in_other.iter_mut()) {
+                if other.order.get(*next) != Some(&point) {
+                    continue;
+                }
+                let cached = other.matches[*next];
+                *next += 1;
+                if !in_pass || cached.queried_at == NEVER_QUERIED {
+                    continue;
+                }
+                let slot = &mut pass.matches[next_in_pass];
+                // The later query has the smaller moves since, hence the likelier skip.
+                if slot.queried_at == NEVER_QUERIED || cached.queried_at > slot.queried_at {
+                    *slot = cached;
+                }
+            }
+            if in_pass {
+                next_in_pass += 1;
+            }
+        }
     }
 
     fn pass(&self, which: Which) -> &Pass {
@@ -956,6 +1008,65 @@ mod tests {
             let all = snapshot(problem.evaluate_all(&shifted(0.05)));
             assert_eq!(snapshot(problem.evaluate_evidence(&shifted(0.05))), all);
             assert_eq!(all.3, EVIDENCE_POINTS);
+        });
+    }
+
+    /// A pass matched for the first time reuses the queries the other passes made for the same
+    /// points (evidence → coarse at the initial guess, coarse → sample when the final round
+    /// begins): most of them are not queried again, and the rows come out bit for bit as from
+    /// fresh queries, at the same transform and after a small move.
+    #[test]
+    fn a_new_pass_reuses_the_other_passes_queries_exactly() {
+        let moved = |x: f64| {
+            let mut t = Matrix4::identity();
+            t[(0, 3)] = x;
+            t[(1, 3)] = -0.5 * x;
+            t
+        };
+        let (guess, step) = (moved(0.01), moved(0.010_002));
+        let (mut fresh_coarse, mut fresh_sample) = (None, None);
+        room_problem_rows(12_000, |problem| {
+            problem.set_annealing(true);
+            fresh_coarse = Some(snapshot(problem.linearise(&guess)));
+        });
+        room_problem_rows(12_000, |problem| {
+            fresh_sample = Some(snapshot(problem.evaluate_all(&step)))
+        });
+        let (fresh_coarse, fresh_sample) = (fresh_coarse.unwrap(), fresh_sample.unwrap());
+        room_problem_rows(12_000, |problem| {
+            problem.evaluate_evidence(&guess);
+            problem.set_annealing(true);
+            assert_eq!(snapshot(problem.linearise(&guess)), fresh_coarse);
+            // Evidence points sit in the coarse subset too (hashes of 1 in 12 and 1 in 3 of
+            // the same sample): their queries at this transform were kept.
+            let kept = problem
+                .coarse
+                .matches
+                .iter()
+                .filter(|m| m.queried_at == 0)
+                .count();
+            let shared = problem
+                .evidence
+                .order
+                .iter()
+                .filter(|i| problem.coarse.order.contains(i))
+                .count();
+            assert!(shared > 500 && kept >= shared * 9 / 10, "{kept} of {shared}");
+            problem.set_annealing(false);
+            assert_eq!(snapshot(problem.evaluate_all(&step)), fresh_sample);
+            let generation = (problem.history.len() - 1) as u16;
+            let requeried = problem
+                .sample
+                .matches
+                .iter()
+                .filter(|m| m.queried_at == generation)
+                .count();
+            let coarse = problem.coarse.order.len();
+            assert!(
+                requeried <= problem.sample.order.len() - coarse * 9 / 10,
+                "{requeried} of {} queried again ({coarse} coarse)",
+                problem.sample.order.len()
+            );
         });
     }
 }
