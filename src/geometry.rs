@@ -395,7 +395,9 @@ pub fn point_to_plane_step_by(
         .sqrt();
     // Rotation unknowns are scaled by the spread so all six columns have length units.
     let length = if spread > 0.0 { spread } else { 1.0 };
-    let mut hessian = Matrix6::zeros();
+    // Σ w·J·Jᵀ, lower triangle only (all that SymmetricEigen reads): (w·J_r)·J_c for c ≤ r,
+    // the products and sums of the full outer product, 21 of its 36.
+    let mut lower = [0.0; 21];
     let mut gradient = Vector6::zeros();
     for (i, &w) in weights.iter().enumerate() {
         if w == 0.0 {
@@ -406,9 +408,25 @@ pub fn point_to_plane_step_by(
         let arm = vector(&p) - centre;
         let residual = normal.dot(&(vector(&p) - vector(&q)));
         let rot = arm.cross(&normal) / length;
-        let jac = Vector6::new(rot.x, rot.y, rot.z, normal.x, normal.y, normal.z);
-        hessian += w * jac * jac.transpose();
-        gradient += w * residual * jac;
+        let jac = [rot.x, rot.y, rot.z, normal.x, normal.y, normal.z];
+        let mut k = 0;
+        for r in 0..6 {
+            let weighted = w * jac[r];
+            for &c in &jac[..=r] {
+                lower[k] += weighted * c;
+                k += 1;
+            }
+        }
+        gradient += w * residual * Vector6::from(jac);
+    }
+    let mut hessian = Matrix6::zeros();
+    let mut k = 0;
+    for r in 0..6 {
+        for c in 0..=r {
+            hessian[(r, c)] = lower[k];
+            hessian[(c, r)] = lower[k];
+            k += 1;
+        }
     }
     let eigen = SymmetricEigen::new(hessian);
     let largest = eigen.eigenvalues.max();
