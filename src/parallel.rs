@@ -9,10 +9,10 @@
 use std::num::NonZeroUsize;
 use std::sync::Mutex;
 
-/// Work items per chunk; fixed so that chunking (and any per-chunk reduction order) is the
-/// same for 1 or N threads. Small enough that the 5 000-point coarse ICP passes split into
-/// several chunks for two threads (10k pair, 2 threads, two A/B rounds: 0.041 s with 4096,
-/// 0.035–0.039 s with 1024).
+/// Work items per chunk of [`Workers::for_each_chunk_mut`]; fixed so that chunking (and any
+/// per-chunk reduction order) is the same for 1 or N threads. Matching and normals, whose
+/// results do not depend on the chunking, use smaller pieces (`for_each_chunk_of`) so that a
+/// few thousand items still split evenly over two threads.
 pub const CHUNK: usize = 1024;
 
 /// How many threads a registration may use (the caller's thread included).

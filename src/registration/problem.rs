@@ -709,7 +709,7 @@ impl<'a> CloudProblem<'a> {
         let (points, index) = (&pass.points, self.target.index());
         let (last_move, typical_margin) = (moves.last(), self.typical_margin);
         self.workers
-            .for_each_chunk_mut(&mut pass.matches, |start, chunk| {
+            .for_each_chunk_of(MATCH_CHUNK, &mut pass.matches, |start, chunk| {
                 let mut previous: Option<(&Point, Match)> = None;
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     let a = &points[start + k];
@@ -796,6 +796,12 @@ impl<'a> CloudProblem<'a> {
         }
     }
 }
+
+/// Source points per thread's work item when matching: the matches do not depend on it, and
+/// the 5 000-point coarse passes then split evenly over two threads (20 pieces, not 4 of 1 024
+/// and one of 904). Room 10 k, 2 threads, two alternating rounds against 1 024: +2-3 %
+/// frames/s warm, 10 k pair matching 14.9 -> 13.8 ms.
+const MATCH_CHUNK: usize = 256;
 
 /// A fixed, sorted random subset of `limit` source indices (all when `limit` is 0 or ≥ n), so
 /// every iteration sees the same correspondences' sources.
