@@ -33,8 +33,20 @@ pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
     ]
 }
 
-/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind every entry
-/// point's non-finite rule (file readers, the Rust API's checks and `skip_non_finite`, the C ABI).
+/// What to do with input points that have a NaN or infinite coordinate: the one policy of
+/// every entry point (file readers, the registrations, prepared targets, the C ABI).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum NonFinite {
+    /// Fail, naming the first such point.
+    #[default]
+    Reject,
+    /// Drop them: depth images and PCL clouds with `is_dense = false` mark invalid points with
+    /// NaN. A registration reports a dropped source point with probability 0 and no match, and
+    /// a non-finite target normal counts as "no normal".
+    Skip,
+}
+
+/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind [`NonFinite`].
 #[inline]
 pub fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())

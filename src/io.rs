@@ -14,7 +14,7 @@ use pcd_rs::{DynReader, DynRecord, Field};
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use crate::geometry::{Point, first_non_finite, is_finite};
+use crate::geometry::{NonFinite, Point, first_non_finite, is_finite};
 
 /// A cloud read from a file.
 #[derive(Clone, Debug, PartialEq)]
@@ -29,16 +29,6 @@ pub struct CloudFile {
     /// What the reader noticed but could read past, one line each: a PCD file holding more
     /// points than its header declares (read as declared, as PCL does, and said here).
     pub warnings: Vec<String>,
-}
-
-/// What to do with points that have a NaN or infinite coordinate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum NonFinite {
-    /// Fail, naming the first such point.
-    Reject,
-    /// Drop them (PCL clouds with `is_dense = false` mark invalid points with NaN) and count
-    /// them in [`CloudFile::skipped_non_finite`].
-    Skip,
 }
 
 /// Reads a `.pcd`, `.ply`, `.xyz` or `.txt` cloud; non-finite coordinates are an error.

@@ -46,9 +46,9 @@ pub mod synthetic;
 pub use cost::CostFunction;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use registration::{
-    Error, Hooks, InlierEstimate, MIN_ESTIMATE_ROWS, Metric, Observer, Point, PrepareOptions, PreparedTarget,
-    Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, Starts, StopReason,
-    TraceEntry, Verdict, WarmStart, estimate_inliers, register_clouds, register_clouds_to,
-    register_correspondences,
+    Error, Hooks, InlierEstimate, MIN_ESTIMATE_ROWS, Metric, NonFinite, Observer, Point, PrepareOptions,
+    PreparedTarget, Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind,
+    Starts, StopReason, TraceEntry, Verdict, WarmStart, estimate_inliers, register_clouds,
+    register_clouds_to, register_correspondences,
 };
 pub use sie::{GammaRule, HistogramMode, HistogramModel, ModelWidth, NoiseShape, SieEstimator, SieOptions};

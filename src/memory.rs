@@ -96,6 +96,18 @@ pub fn cloud_registration_bytes(source: usize, target: usize) -> usize {
     linear(source, 150, CLOUD_OVERHEAD).saturating_add(target.saturating_mul(155))
 }
 
+/// Peak heap of `register_clouds_to` beyond its source and the prepared target: the source
+/// part as [`cloud_registration_bytes`]; per target point, among others the normals a first
+/// point-to-plane registration estimates and, with per-point noise, the target's σ and a copy
+/// of its points in the caller's order. Measured (tests/peak_memory.rs) at most 62 B per target
+/// point, bounded here with ~25 % margin.
+pub fn prepared_registration_bytes(source: usize, target: usize) -> usize {
+    linear(source, 150, CLOUD_OVERHEAD).saturating_add(target.saturating_mul(PREPARED_TARGET_BYTES))
+}
+
+/// See [`prepared_registration_bytes`].
+const PREPARED_TARGET_BYTES: usize = 80;
+
 /// Peak heap of `register_correspondences` beyond its inputs (measured at most 165 B a pair).
 pub fn correspondence_registration_bytes(pairs: usize) -> usize {
     linear(pairs, 184, OVERHEAD)

@@ -917,7 +917,7 @@ fn file_normals_that_are_not_unit_vectors_give_one_line_and_exit_code_2() {
     assert!(
         stderr.starts_with("sie: ")
             && stderr.contains("normals.ply")
-            && stderr.contains("normal[3] has length 0.5")
+            && stderr.contains("target normals[3] has length 0.5")
             && stderr.contains("unit vectors"),
         "{stderr}"
     );
@@ -1136,7 +1136,7 @@ fn a_registration_too_large_for_memory_exits_2() {
     let stderr = text(&output.stderr);
     assert_eq!(output.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.contains("cannot register: out of memory") && stderr.contains("GiB"),
+        stderr.contains("cannot register") && stderr.contains(": out of memory") && stderr.contains("GiB"),
         "{stderr}"
     );
 }

@@ -6,7 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use sie::io::{CloudFile, NonFinite, read_cloud, read_cloud_with, read_transform};
+use sie::NonFinite;
+use sie::io::{CloudFile, read_cloud, read_cloud_with, read_transform};
 
 fn data_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("SIE_DATA_DIR")

@@ -147,7 +147,7 @@ fn given_normals_and_skipped_points_map_back_to_the_callers_indices() {
         &sie::parallel::Workers::new(1).unwrap(),
     );
     let config = RegistrationConfig {
-        skip_non_finite: true,
+        non_finite: sie::NonFinite::Skip,
         ..RegistrationConfig::default()
     };
     let mut target = scene.target.clone();

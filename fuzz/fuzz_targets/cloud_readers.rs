@@ -1,7 +1,8 @@
 //! The PCD, PLY and XYZ readers on arbitrary bytes: an error or a cloud, never a panic.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use sie::io::{CloudFormat, NonFinite, parse_cloud};
+use sie::NonFinite;
+use sie::io::{CloudFormat, parse_cloud};
 
 fuzz_target!(|data: &[u8]| {
     let Some((&selector, bytes)) = data.split_first() else { return };

@@ -9,13 +9,9 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 use sie::geometry::{NOTABLE_CORRECTION, Rigid, make_rigid, rotation_part, transform_point, vector};
-use sie::io::{
-    CloudFile, NonFinite, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz,
-};
-use sie::memory;
-use sie::registration::require_unit_normals;
+use sie::io::{CloudFile, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz};
 use sie::{
-    CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, Point, RegistrationConfig,
+    CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, NonFinite, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, Verdict, register_clouds,
 };
 
@@ -106,19 +102,12 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
                 args.target.display()
             ))
         })?;
-        // The library's rule, checked here to name the file.
-        require_unit_normals("normal", normals)
-            .map_err(|e| CliError::new(format!("{}: {e}", args.target.display())))?;
         Some(normals)
     } else {
         None
     };
     let read_seconds = read_start.elapsed().as_secs_f64();
 
-    // Asked for before starting, so that a memory limit is an error here, not an abort later.
-    let working_set = memory::cloud_registration_bytes(source.points.len(), target.points.len());
-    memory::ensure_available(working_set, "the registration of these clouds")
-        .map_err(|e| CliError::new(format!("cannot register: {e}")))?;
     install_interrupt_handler();
     progress.note(match (config.metric, target_normals) {
         (Metric::PointToPlane, None) => "estimating target normals",
@@ -142,7 +131,15 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         )
     };
     progress.finish();
-    let result = outcome.map_err(|e| CliError::new(format!("cannot register: {e}")))?;
+    // The library checks the input (unit normals, the memory it needs) and names what is wrong;
+    // the files say where.
+    let result = outcome.map_err(|e| {
+        CliError::new(format!(
+            "cannot register {} onto {}: {e}",
+            args.source.display(),
+            args.target.display()
+        ))
+    })?;
     let seconds = started.elapsed().as_secs_f64();
 
     let ground_truth = truth.map(|t| {

@@ -51,6 +51,7 @@ impl From<Error> for FfiError {
             Error::NonFinite(_) => sie_status::NonFiniteInput,
             Error::TooFewPoints(_) => sie_status::TooFewPoints,
             Error::Callback(_) => sie_status::CallbackFailed,
+            Error::OutOfMemory(_) => sie_status::OutOfMemory,
         };
         FfiError::new(status, error.to_string())
     }

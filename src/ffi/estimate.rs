@@ -6,8 +6,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, read_array, write_output};
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
-use crate::memory;
-use crate::sie::estimate::{check_estimate_values, estimate_inliers};
+use crate::sie::estimate::estimate_inliers;
 
 /// Statistical Inlier Estimation on a residual matrix, without registration: P(inlier) per row.
 ///
@@ -71,10 +70,6 @@ pub unsafe extern "C" fn sie_estimate_inliers(
             // SAFETY: readable per the contract.
             Some(unsafe { read_array(row_scales, rows, "row_scales") }?)
         };
-        // The core's rules, before asking for memory.
-        check_estimate_values(&matrix, cols, scales.as_deref(), beta)?;
-
-        memory::ensure_available(memory::estimate_bytes(len), "the inlier estimate")?;
         let estimate = estimate_inliers(&matrix, cols, scales.as_deref(), beta, &call.state.config.sie)?;
         let model_count = estimate.models.len();
         if !out_models.is_null() && models_capacity < model_count {

@@ -7,7 +7,7 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::{sie_status, sie_summary};
-use crate::geometry::{Point, Rigid, is_finite};
+use crate::geometry::{NonFinite, Point, Rigid, is_finite};
 use crate::memory::try_vec;
 use crate::registration::WarmStart;
 
@@ -134,8 +134,8 @@ pub(crate) unsafe fn read_warm_start(ptr: *const sie_summary, name: &str) -> Res
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`
-/// (0 = packed), rejecting bad strides, misalignment and (unless `allow_non_finite`, for the
-/// skip-non-finite option) non-finite coordinates.
+/// (0 = packed), rejecting bad strides, misalignment and (with [`NonFinite::Reject`])
+/// non-finite coordinates.
 ///
 /// # Safety
 /// `ptr` is NULL or valid for reading `count` points at that stride.
@@ -144,7 +144,7 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
     count: usize,
     stride_bytes: usize,
     name: &str,
-    allow_non_finite: bool,
+    non_finite: NonFinite,
 ) -> Result<Vec<Point>, FfiError> {
     check_non_null(ptr, name)?;
     let scalar = size_of::<T>();
@@ -178,7 +178,7 @@ pub(crate) unsafe fn read_points<T: Coordinate>(
             [first.read(), first.add(1).read(), first.add(2).read()]
         };
         let point = point.map(Coordinate::to_f64);
-        if !allow_non_finite && !is_finite(&point) {
+        if non_finite == NonFinite::Reject && !is_finite(&point) {
             let axis = point.iter().position(|v| !v.is_finite()).unwrap_or(0);
             return Err(FfiError::new(
                 sie_status::NonFiniteInput,

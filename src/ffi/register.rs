@@ -14,10 +14,9 @@ use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::geometry::Rigid;
-use crate::memory;
 use crate::noise::NoiseScales;
 use crate::registration::{
-    Error, Hooks, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry, require_unit_normals,
+    Error, Hooks, NonFinite, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
 };
 
 /// A strided array of three coordinates per point, as passed by C.
@@ -33,7 +32,7 @@ struct PointArray<T> {
 impl<T: Coordinate> PointArray<T> {
     /// # Safety
     /// `xyz` is NULL or valid for `count` points at `stride_bytes`.
-    unsafe fn read(self, allow_non_finite: bool) -> Result<Vec<Point>, FfiError> {
+    unsafe fn read(self, non_finite: NonFinite) -> Result<Vec<Point>, FfiError> {
         // A NULL array is reported as such even when its count is 0.
         if self.count == 0 && !self.xyz.is_null() {
             return Err(FfiError::new(
@@ -42,15 +41,7 @@ impl<T: Coordinate> PointArray<T> {
             ));
         }
         // SAFETY: forwarded contract.
-        unsafe {
-            read_points(
-                self.xyz,
-                self.count,
-                self.stride_bytes,
-                self.name,
-                allow_non_finite,
-            )
-        }
+        unsafe { read_points(self.xyz, self.count, self.stride_bytes, self.name, non_finite) }
     }
 }
 
@@ -123,22 +114,18 @@ unsafe fn register_clouds_from<T: Coordinate>(
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
         // SAFETY: readable for its count and stride per the contract.
-        let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        let source_points = unsafe { source.read(state.config.non_finite) }?;
         // SAFETY: readable for its count and stride per the contract.
-        let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
+        let target_points = unsafe { target.read(state.config.non_finite) }?;
         let normals = match target_normals {
             Some(array) => {
                 // SAFETY: readable for its count and stride per the contract.
-                let normals = unsafe { array.read(state.config.skip_non_finite) }?;
-                require_unit_normals(array.name, &normals)?;
-                Some(normals)
+                Some(unsafe { array.read(state.config.non_finite) }?)
             }
             None => None,
         };
         // SAFETY: NULL or readable for 16 doubles per the contract.
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
-        let working_set = memory::cloud_registration_bytes(source_points.len(), target_points.len());
-        memory::ensure_available(working_set, "the registration of these clouds")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(
@@ -177,13 +164,11 @@ unsafe fn register_correspondences_from<T: Coordinate>(
         check_output(out_t_target_source, "out_T_target_source")?;
         // SAFETY (all reads): the arrays and the transform are readable per the contract.
         // SAFETY: readable for its count and stride per the contract.
-        let source_points = unsafe { source.read(state.config.skip_non_finite) }?;
+        let source_points = unsafe { source.read(state.config.non_finite) }?;
         // SAFETY: readable for its count and stride per the contract.
-        let target_points = unsafe { target.read(state.config.skip_non_finite) }?;
+        let target_points = unsafe { target.read(state.config.non_finite) }?;
         // SAFETY: NULL or readable for 16 doubles per the contract.
         let init = unsafe { read_transform(init_t_target_source, "init_T_target_source") }?;
-        let working_set = memory::correspondence_registration_bytes(source_points.len());
-        memory::ensure_available(working_set, "the registration of these pairs")?;
         // SAFETY: `out_t_target_source` was checked above and holds 16 doubles per the contract.
         unsafe {
             run_and_store(

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::cost::CostFunction;
 use crate::noise::NoiseModel;
-use crate::registration::{Metric, RegistrationConfig, Starts};
+use crate::registration::{Metric, NonFinite, RegistrationConfig, Starts};
 use crate::sie::{HistogramMode, NoiseShape};
 
 /// Student-t degrees of freedom when the caller passes 0 (Kerl et al. 2013).
@@ -387,7 +387,11 @@ pub unsafe extern "C" fn sie_context_set_skip_non_finite(ctx: *mut sie_context, 
     // SAFETY: forwarded contract.
     unsafe {
         update_config(ctx, |config| {
-            config.skip_non_finite = enabled;
+            config.non_finite = if enabled {
+                NonFinite::Skip
+            } else {
+                NonFinite::Reject
+            };
             Ok(())
         })
     }

@@ -6,7 +6,7 @@ use super::boundary::{FfiError, boundary, without_context};
 use super::input::{Coordinate, check_output, read_points, read_transform, write_output};
 use super::register::run_and_store;
 use super::{sie_context, sie_status};
-use crate::registration::{PrepareOptions, PreparedTarget, register_owned_to, require_unit_normals};
+use crate::registration::{PrepareOptions, PreparedTarget, register_owned_to};
 
 /// A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
 /// (given, or estimated by the registrations that reach them and kept for later ones).
@@ -37,20 +37,18 @@ unsafe fn prepare_target_from<T: Coordinate>(
     boundary(unsafe { ctx.as_ref() }, |call| {
         let state = call.state;
         check_output(out_target, "out_target")?;
-        let skip = state.config.skip_non_finite;
+        let non_finite = state.config.non_finite;
         if count == 0 && !xyz.is_null() {
             return Err(FfiError::new(sie_status::TooFewPoints, "count is 0"));
         }
         // SAFETY (both reads): readable per the contract.
         // SAFETY: readable for its count and stride per the contract.
-        let points = unsafe { read_points(xyz, count, stride_bytes, "xyz", skip) }?;
+        let points = unsafe { read_points(xyz, count, stride_bytes, "xyz", non_finite) }?;
         let normals = if normals.is_null() {
             None
         } else {
             // SAFETY: readable for its count and stride per the contract.
-            let normals = unsafe { read_points(normals, count, normals_stride_bytes, "normals", skip) }?;
-            require_unit_normals("normals", &normals)?;
-            Some(normals)
+            Some(unsafe { read_points(normals, count, normals_stride_bytes, "normals", non_finite) }?)
         };
         let options = PrepareOptions::from_config(&state.config);
         let prepared = PreparedTarget::new(&points, normals.as_deref(), &options)?;
@@ -211,7 +209,7 @@ unsafe fn register_to_from<T: Coordinate>(
                 source_count,
                 source_stride_bytes,
                 "source_xyz",
-                state.config.skip_non_finite,
+                state.config.non_finite,
             )
         }?;
         // SAFETY: NULL or readable for 16 doubles per the contract.

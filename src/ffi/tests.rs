@@ -11,6 +11,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{read_points, read_transform, row_major, write_buffer};
 use super::*;
 use crate::cost::CostFunction;
+use crate::geometry::NonFinite;
 use crate::registration::{
     Metric, Quality, RegistrationResult, SearchReport, StartKind, Starts, StopReason, TraceEntry, Verdict,
 };
@@ -673,32 +674,42 @@ fn points_are_read_with_byte_strides() {
             pad: f32::NAN,
         })
         .collect();
-    let points = unsafe { read_points(&raw const cloud[0].x, 4, 16, "source_xyz", false) }.unwrap();
+    let points =
+        unsafe { read_points(&raw const cloud[0].x, 4, 16, "source_xyz", NonFinite::Reject) }.unwrap();
     assert_eq!(points[3], [3.0, 13.0, 23.0]);
 
     let packed = [1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0];
-    let points = unsafe { read_points(packed.as_ptr(), 2, 0, "target_xyz", false) }.unwrap();
+    let points = unsafe { read_points(packed.as_ptr(), 2, 0, "target_xyz", NonFinite::Reject) }.unwrap();
     assert_eq!(points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
     // Stride 32 over doubles: every other triple... of a 4-double record.
     let records = [1.0f64, 2.0, 3.0, -1.0, 4.0, 5.0, 6.0, -1.0];
-    let points = unsafe { read_points(records.as_ptr(), 2, 32, "target_xyz", false) }.unwrap();
+    let points = unsafe { read_points(records.as_ptr(), 2, 32, "target_xyz", NonFinite::Reject) }.unwrap();
     assert_eq!(points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
 
     for (stride, scalar) in [(10, "float"), (14, "float"), (8, "float")] {
-        let error =
-            unsafe { read_points(&raw const cloud[0].x, 4, stride, "source_xyz", false) }.unwrap_err();
+        let error = unsafe { read_points(&raw const cloud[0].x, 4, stride, "source_xyz", NonFinite::Reject) }
+            .unwrap_err();
         assert_eq!(error.status, sie_status::InvalidArgument, "{stride}");
         assert!(error.message.contains(scalar) && error.message.contains(&stride.to_string()));
     }
-    let error = unsafe { read_points(packed.as_ptr(), 1, 12, "target_xyz", false) }.unwrap_err();
+    let error = unsafe { read_points(packed.as_ptr(), 1, 12, "target_xyz", NonFinite::Reject) }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
     let misaligned = unsafe { packed.as_ptr().byte_add(4) };
-    let error = unsafe { read_points(misaligned, 1, 0, "target_xyz", false) }.unwrap_err();
+    let error = unsafe { read_points(misaligned, 1, 0, "target_xyz", NonFinite::Reject) }.unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
     assert!(error.message.contains("aligned"), "{}", error.message);
-    let error = unsafe { read_points(null::<f32>(), 1, 0, "source_xyz", false) }.unwrap_err();
+    let error = unsafe { read_points(null::<f32>(), 1, 0, "source_xyz", NonFinite::Reject) }.unwrap_err();
     assert_eq!(error, FfiError::null("source_xyz"));
-    let error = unsafe { read_points(packed.as_ptr(), usize::MAX / 8, 0, "target_xyz", false) }.unwrap_err();
+    let error = unsafe {
+        read_points(
+            packed.as_ptr(),
+            usize::MAX / 8,
+            0,
+            "target_xyz",
+            NonFinite::Reject,
+        )
+    }
+    .unwrap_err();
     assert_eq!(error.status, sie_status::InvalidArgument);
 }
 
@@ -707,7 +718,7 @@ fn non_finite_coordinates_name_the_first_bad_point() {
     let mut xyz = vec![0.5f32; 3 * 20];
     xyz[3 * 17 + 1] = f32::NAN;
     xyz[3 * 19] = f32::INFINITY;
-    let error = unsafe { read_points(xyz.as_ptr(), 20, 0, "source_xyz", false) }.unwrap_err();
+    let error = unsafe { read_points(xyz.as_ptr(), 20, 0, "source_xyz", NonFinite::Reject) }.unwrap_err();
     assert_eq!(error.status, sie_status::NonFiniteInput);
     assert!(
         error.message.starts_with("source_xyz[17] is NaN (y"),
@@ -941,7 +952,7 @@ fn failed_registration_keeps_outputs_and_drops_the_previous_result() {
     };
     assert_eq!(status, sie_status::InvalidArgument);
     assert!(
-        ctx.last_error().contains("target_normals[0] has length 0.5"),
+        ctx.last_error().contains("target normals[0] has length 0.5"),
         "{}",
         ctx.last_error()
     );

@@ -5,14 +5,13 @@ use nalgebra::Matrix4;
 
 use super::{RegistrationConfig, RegistrationResult};
 use crate::error::Error;
-use crate::geometry::{Point, first_non_finite, is_finite};
+use crate::geometry::{NonFinite, Point, first_non_finite, is_finite};
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
 
-/// Which points the caller asked to drop before registering (`skip_non_finite`,
-/// `skip_origin`).
+/// Which points the caller asked to drop before registering (`non_finite`, `skip_origin`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Skip {
-    pub(crate) non_finite: bool,
+    pub(crate) non_finite: NonFinite,
     /// Points at exactly 0 0 0 (0.0 == -0.0): depth sensors' invalid pixels.
     pub(crate) origin: bool,
 }
@@ -20,19 +19,19 @@ pub(crate) struct Skip {
 impl Skip {
     pub(crate) fn of(config: &RegistrationConfig) -> Self {
         Skip {
-            non_finite: config.skip_non_finite,
+            non_finite: config.non_finite,
             origin: config.skip_origin,
         }
     }
 
     /// Whether any point can be dropped.
     pub(crate) fn any(&self) -> bool {
-        self.non_finite || self.origin
+        self.non_finite == NonFinite::Skip || self.origin
     }
 
     /// Whether a point survives.
     pub(crate) fn keeps(&self, p: &Point) -> bool {
-        (!self.non_finite || is_finite(p)) && !(self.origin && *p == [0.0; 3])
+        (self.non_finite == NonFinite::Reject || is_finite(p)) && !(self.origin && *p == [0.0; 3])
     }
 
     /// Indices of the points kept, or `None` when every point is (nothing to copy).
@@ -96,13 +95,30 @@ pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> 
     }
 }
 
+/// The neighbour counts PCA normals may use: three points span a plane, and a thousand is
+/// far beyond any scan's need (each normal costs a k-NN query).
+const NORMAL_NEIGHBOURS: std::ops::RangeInclusive<usize> = 3..=1000;
+
+/// `normal_neighbours` (of a config or a prepared target) is in 3..=1000.
+pub(crate) fn require_normal_neighbours(neighbours: usize) -> Result<(), Error> {
+    if NORMAL_NEIGHBOURS.contains(&neighbours) {
+        Ok(())
+    } else {
+        Err(Error::InvalidArgument(format!(
+            "normal_neighbours must be in {}..={}, got {neighbours}",
+            NORMAL_NEIGHBOURS.start(),
+            NORMAL_NEIGHBOURS.end()
+        )))
+    }
+}
+
 /// How far a given normal's length may be from 1.
 pub const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
 
 /// Given normals (point-to-plane's target normals) must be unit vectors, within
 /// [`NORMAL_LENGTH_TOLERANCE`], or exactly 0 0 0 for a point without one (never matched). The one
 /// rule for every entry point (Rust API, C ABI, CLI); non-finite normals are left to the
-/// non-finite rule (refused, or "no normal" with `skip_non_finite`). The error names
+/// non-finite rule (refused, or "no normal" with [`NonFinite::Skip`]). The error names
 /// `what[index]` and the length found.
 pub fn require_unit_normals(what: &str, normals: &[Point]) -> Result<(), Error> {
     for (index, normal) in normals.iter().enumerate().filter(|(_, n)| is_finite(n)) {

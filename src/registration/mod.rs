@@ -20,7 +20,7 @@ pub use crate::sie::estimate::{InlierEstimate, MIN_ESTIMATE_ROWS, estimate_inlie
 use crate::sie::{HistogramModel, SieOptions};
 
 pub use crate::error::Error;
-pub use crate::geometry::Point;
+pub use crate::geometry::{NonFinite, Point};
 pub use crate::sie::schedule::WarmStart;
 
 /// Residual used by ICP.
@@ -122,10 +122,10 @@ pub struct RegistrationConfig {
     pub seed: u64,
     /// Record one `TraceEntry` per iteration.
     pub record_trace: bool,
-    /// Drop points (or pairs) with a NaN or infinite coordinate instead of rejecting the input
+    /// Points (or pairs) with a NaN or infinite coordinate: rejected (the default), or dropped
     /// (depth images and PCL clouds with `is_dense = false` carry them). Dropped source points
     /// report probability 0 and no match; a non-finite target normal counts as "no normal".
-    pub skip_non_finite: bool,
+    pub non_finite: NonFinite,
     /// Drop points (or pairs) at exactly (0, 0, 0) the same way: organised clouds from depth
     /// sensors mark invalid pixels so. They are not measurements, and with both clouds from the
     /// same sensor point-to-point matches them to each other (at residual 0 at the identity).
@@ -153,7 +153,7 @@ impl Default for RegistrationConfig {
             threads: 0,
             seed: 0x5EED,
             record_trace: false,
-            skip_non_finite: false,
+            non_finite: NonFinite::Reject,
             skip_origin: false,
         }
     }
@@ -193,12 +193,7 @@ impl RegistrationConfig {
                 self.beta_stop_ratio
             ));
         }
-        if !(3..=1000).contains(&self.normal_neighbours) {
-            return bad(format!(
-                "normal_neighbours must be in 3..=1000, got {}",
-                self.normal_neighbours
-            ));
-        }
+        input::require_normal_neighbours(self.normal_neighbours)?;
         if self.threads > 1024 {
             return bad(format!("threads must be <= 1024, got {}", self.threads));
         }

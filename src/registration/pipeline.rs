@@ -16,7 +16,8 @@ use super::{
 };
 use crate::cost::CostFunction;
 use crate::error::Error;
-use crate::geometry::Point;
+use crate::geometry::{NonFinite, Point};
+use crate::memory;
 use crate::noise::{NoiseModel, NoiseScales};
 use crate::parallel::Workers;
 use crate::sie::hypotheses::{self, Pairs};
@@ -25,6 +26,10 @@ use crate::sie::significance::{self, Background};
 use crate::sie::starts::{CLOUD_STARTS, LEAD_ROTATION_TOLERANCE, LEAD_TRANSLATION_FRACTION, Lead};
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
+///
+/// Errors: a bad setting, lengths that differ, fewer than 3 (kept) pairs, a non-finite
+/// coordinate (unless `config.non_finite` skips it), a bad initial guess, a failed noise
+/// callback, and [`Error::OutOfMemory`] when the registration's working set cannot be had.
 pub fn register_correspondences(
     source: &[Point],
     target: &[Point],
@@ -41,6 +46,24 @@ pub fn register_correspondences(
             target.len()
         )));
     }
+    // Asked for up front: a memory limit is an error here, not an abort part-way.
+    memory::ensure_available(
+        memory::correspondence_registration_bytes(source.len()),
+        "the registration of these pairs",
+    )?;
+    let mut result = register_pairs(source, target, init, config, hooks)?;
+    result.times.total = started.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+/// [`register_correspondences`] after its checks of the config, the lengths and the memory.
+fn register_pairs(
+    source: &[Point],
+    target: &[Point],
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
     let skip = Skip::of(config);
     if skip.any() {
         let kept: Vec<u32> = (0..source.len() as u32)
@@ -50,13 +73,13 @@ pub fn register_correspondences(
             let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
             let (source_kept, target_kept) = (pick(source), pick(target));
             let finite = RegistrationConfig {
-                skip_non_finite: false,
+                non_finite: NonFinite::Reject,
                 skip_origin: false,
                 ..config.clone()
             };
             let share = kept.len() as f64 / source.len() as f64;
             let result = with_share(hooks, share, |hooks| {
-                register_correspondences(&source_kept, &target_kept, init, &finite, hooks)
+                register_pairs(&source_kept, &target_kept, init, &finite, hooks)
             })?;
             return Ok(expand(result, &kept, source.len(), Some(&kept)));
         }
@@ -67,7 +90,7 @@ pub fn register_correspondences(
     let init = checked_initial_guess(init)?;
     let (source_sigma, target_sigma) = noise_sigmas(config, hooks.noise, source, target)?;
     let units = Units::choose(source, target, &sigma_slices(&source_sigma, &target_sigma));
-    let mut result = if units.is_identity() {
+    let result = if units.is_identity() {
         let mut problem = CorrespondenceProblem::new(source, target, source_sigma, target_sigma);
         correspondences_on(&mut problem, source, target, init, config, hooks.observer)?
     } else {
@@ -91,7 +114,6 @@ pub fn register_correspondences(
         units.result_out(&mut result);
         result
     };
-    result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
 
@@ -623,27 +645,24 @@ pub(crate) fn register_owned_clouds(
     Ok(result)
 }
 
-/// `register_clouds`' checks, in its order, then the target prepared with the config's options.
+/// `register_clouds`' checks of the source and the memory, then the target prepared (and
+/// checked) with the config's options.
 fn prepare_for(
     source: &[Point],
     target: &[Point],
     target_normals: Option<&[Point]>,
     config: &RegistrationConfig,
 ) -> Result<PreparedTarget, Error> {
-    if let Some(normals) = target_normals {
-        if normals.len() != target.len() {
-            return Err(Error::InvalidArgument(format!(
-                "target has {} points but {} normals",
-                target.len(),
-                normals.len()
-            )));
-        }
-    }
     if !Skip::of(config).any() {
         require_points("source", source.len(), 3)?;
         require_points("target", target.len(), 3)?;
         require_finite("source", source)?;
     }
+    // Asked for up front: a memory limit is an error here, not an abort part-way.
+    memory::ensure_available(
+        memory::cloud_registration_bytes(source.len(), target.len()),
+        "the registration of these clouds",
+    )?;
     PreparedTarget::new(target, target_normals, &PrepareOptions::from_config(config))
 }
 
@@ -654,7 +673,7 @@ fn prepare_for(
 ///
 /// Errors as `register_clouds`; besides, a point-to-plane config whose `normal_neighbours`
 /// differs from the one the target's normals are estimated with (`PrepareOptions`) is
-/// refused. `config.skip_non_finite` applies to the source; the target's is fixed when it is
+/// refused. `config.non_finite` applies to the source; the target's is fixed when it is
 /// prepared.
 pub fn register_clouds_to(
     source: &[Point],
@@ -688,6 +707,11 @@ fn register_source_to(
 ) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
+    // Asked for up front: a memory limit is an error here, not an abort part-way.
+    memory::ensure_available(
+        memory::prepared_registration_bytes(source.len(), target.len()),
+        "the registration onto this target",
+    )?;
     let mut result = register_to_prepared(source, target, init, config, hooks, 0.0)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)

@@ -10,10 +10,10 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
-use super::input::{Skip, require_finite, require_points, require_unit_normals};
+use super::input::{Skip, require_finite, require_normal_neighbours, require_points, require_unit_normals};
 use super::units::Units;
 use crate::error::Error;
-use crate::geometry::{Point, is_finite};
+use crate::geometry::{NonFinite, Point, is_finite};
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
@@ -27,10 +27,9 @@ pub struct PrepareOptions {
     /// Neighbours for PCA normals when none are given (as `RegistrationConfig::normal_neighbours`;
     /// a registration whose config asks for another count is refused).
     pub normal_neighbours: usize,
-    /// Drop target points with a NaN or infinite coordinate instead of refusing them
-    /// (correspondences still name the caller's indices); a non-finite given normal then counts
-    /// as "no normal".
-    pub skip_non_finite: bool,
+    /// Target points with a NaN or infinite coordinate: refused, or dropped (correspondences
+    /// still name the caller's indices; a non-finite given normal then counts as "no normal").
+    pub non_finite: NonFinite,
     /// Drop target points at exactly 0 0 0 (depth sensors' invalid pixels).
     pub skip_origin: bool,
 }
@@ -39,7 +38,7 @@ impl Default for PrepareOptions {
     fn default() -> Self {
         PrepareOptions {
             normal_neighbours: super::RegistrationConfig::default().normal_neighbours,
-            skip_non_finite: false,
+            non_finite: NonFinite::Reject,
             skip_origin: false,
         }
     }
@@ -50,7 +49,7 @@ impl PrepareOptions {
     pub fn from_config(config: &super::RegistrationConfig) -> Self {
         PrepareOptions {
             normal_neighbours: config.normal_neighbours,
-            skip_non_finite: config.skip_non_finite,
+            non_finite: config.non_finite,
             skip_origin: config.skip_origin,
         }
     }
@@ -162,16 +161,11 @@ impl PreparedTarget {
     /// are estimated from `normal_neighbours` neighbours when a registration first needs them.
     ///
     /// Errors: fewer than 3 (finite) points, a non-finite coordinate or normal (unless
-    /// `skip_non_finite`), a normal count that differs from the point count, a finite normal
+    /// [`NonFinite::Skip`]), a normal count that differs from the point count, a finite normal
     /// that is neither of unit length nor 0 0 0 ([`require_unit_normals`]), a bad
     /// `normal_neighbours`, more than u32::MAX − 1 points.
     pub fn new(target: &[Point], normals: Option<&[Point]>, options: &PrepareOptions) -> Result<Self, Error> {
-        if !(3..=1000).contains(&options.normal_neighbours) {
-            return Err(Error::InvalidArgument(format!(
-                "normal_neighbours must be in 3..=1000, got {}",
-                options.normal_neighbours
-            )));
-        }
+        require_normal_neighbours(options.normal_neighbours)?;
         if let Some(normals) = normals {
             if normals.len() != target.len() {
                 return Err(Error::InvalidArgument(format!(
@@ -183,7 +177,7 @@ impl PreparedTarget {
             require_unit_normals("target normals", normals)?;
         }
         let kept = Skip {
-            non_finite: options.skip_non_finite,
+            non_finite: options.non_finite,
             origin: options.skip_origin,
         }
         .kept_indices(target);
@@ -198,14 +192,14 @@ impl PreparedTarget {
         let points = kept_points.as_deref().unwrap_or(target);
         require_points("target", points.len(), 3)?;
         require_finite("target", points)?;
-        let kept_normals: Option<Vec<Point>> = match (normals, options.skip_non_finite) {
-            (Some(normals), true) => Some(
+        let kept_normals: Option<Vec<Point>> = match (normals, options.non_finite) {
+            (Some(normals), NonFinite::Skip) => Some(
                 pick(normals)
                     .into_iter()
                     .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
                     .collect(),
             ),
-            (Some(normals), false) => {
+            (Some(normals), NonFinite::Reject) => {
                 require_finite("target normals", normals)?;
                 None
             }
@@ -588,7 +582,7 @@ mod tests {
             Err(Error::NonFinite(_))
         ));
         let skipping = PrepareOptions {
-            skip_non_finite: true,
+            non_finite: NonFinite::Skip,
             ..options.clone()
         };
         let prepared = PreparedTarget::new(&nan, None, &skipping).unwrap();

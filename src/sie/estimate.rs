@@ -3,6 +3,7 @@
 
 use super::{ARITHMETIC_LIMIT, HistogramModel, SieEstimator, SieOptions};
 use crate::error::Error;
+use crate::memory;
 
 /// Standalone SIE fits a histogram: below this many rows there is no peak to fit, and the
 /// answer (every P at its cap) would mean nothing.
@@ -23,6 +24,10 @@ pub struct InlierEstimate {
 /// given; β is the regulariser (0 for none). Fits with k = k₀, then adapts k from P(I|H) and
 /// refits (§4.5), and returns P(I|R_i) per row. The answer does not depend on the residuals'
 /// unit (extreme magnitudes are fitted in a unit of their own).
+///
+/// Errors: bad options or shape, fewer than [`MIN_ESTIMATE_ROWS`] rows, a non-finite value, a
+/// row scale that is not finite and > 0, a β that is not finite and ≥ 0, and
+/// [`Error::OutOfMemory`] when the estimate's working set cannot be had.
 pub fn estimate_inliers(
     residuals: &[f64],
     cols: usize,
@@ -47,6 +52,8 @@ pub fn estimate_inliers(
         ));
     }
     check_estimate_values(residuals, cols, row_scales, beta)?;
+    // Asked for up front: a memory limit is an error here, not an abort part-way.
+    memory::ensure_available(memory::estimate_bytes(residuals.len()), "the inlier estimate")?;
     let normalised: Vec<f64> = match row_scales {
         None => residuals.to_vec(),
         Some(scales) => residuals
@@ -102,7 +109,7 @@ pub fn estimate_inliers(
 /// The value rules of [`estimate_inliers`], for every entry point (the C ABI checks them before
 /// it asks for memory): residuals finite (the error names the row and column), one row scale per
 /// row, finite and > 0, and β finite and >= 0. `residuals` holds whole rows of `cols` >= 1.
-pub(crate) fn check_estimate_values(
+fn check_estimate_values(
     residuals: &[f64],
     cols: usize,
     row_scales: Option<&[f64]>,
