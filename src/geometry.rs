@@ -145,8 +145,7 @@ pub fn median_point(points: &[Point]) -> Point {
     }
     std::array::from_fn(|axis| {
         let mut values: Vec<f64> = points.iter().map(|p| p[axis]).collect();
-        let mid = values.len() / 2;
-        *values.select_nth_unstable_by(mid, f64::total_cmp).1
+        crate::median::median(&mut values).unwrap_or(0.0)
     })
 }
 

@@ -35,6 +35,7 @@ pub mod geometry;
 #[cfg(feature = "io")]
 pub mod io;
 pub mod memory;
+mod median;
 pub mod nn;
 pub(crate) mod noise;
 pub mod normals;

@@ -181,11 +181,7 @@ fn median_thickness(
         }
     });
     let mut ratios: Vec<f64> = ratios.into_iter().flatten().collect();
-    if ratios.is_empty() {
-        return f64::INFINITY;
-    }
-    let half = ratios.len() / 2;
-    *ratios.select_nth_unstable_by(half, f64::total_cmp).1
+    crate::median::median(&mut ratios).unwrap_or(f64::INFINITY)
 }
 
 /// Eigenvalues of a symmetric 3×3 matrix, ascending (trigonometric form, Smith 1961; accurate

@@ -12,6 +12,7 @@ use crate::geometry::{
     Point, Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit,
     weighted_rigid_fit_by,
 };
+use crate::median::median;
 use crate::noise::combine;
 use crate::parallel::Workers;
 
@@ -45,12 +46,8 @@ impl RowScales {
     /// The median F (1 when every F is 1 or there are no rows).
     pub fn median(&self) -> f64 {
         match self.per_row() {
-            Some(scales) if !scales.is_empty() => {
-                let mut scales = scales.to_vec();
-                let mid = scales.len() / 2;
-                *scales.select_nth_unstable_by(mid, f64::total_cmp).1
-            }
-            _ => 1.0,
+            Some(scales) => median(&mut scales.to_vec()).unwrap_or(1.0),
+            None => 1.0,
         }
     }
 
@@ -212,15 +209,11 @@ fn probe_points_of(points: &[Point]) -> Vec<Point> {
 
 /// Median over the points of their largest coordinate magnitude.
 fn typical_magnitude(points: &[Point]) -> f64 {
-    if points.is_empty() {
-        return 0.0;
-    }
     let mut magnitudes: Vec<f64> = points
         .iter()
         .map(|p| p.iter().fold(0.0f64, |m, v| m.max(v.abs())))
         .collect();
-    let mid = magnitudes.len() / 2;
-    *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1
+    median(&mut magnitudes).unwrap_or(0.0)
 }
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
@@ -613,9 +606,8 @@ impl<'a> CloudProblem<'a> {
         self.moves = moves;
         if self.typical_margin == f64::INFINITY {
             let mut margins: Vec<f64> = pass.matches.iter().map(|m| m.margin.get()).collect();
-            if !margins.is_empty() {
-                let half = margins.len() / 2;
-                self.typical_margin = *margins.select_nth_unstable_by(half, f64::total_cmp).1;
+            if let Some(typical) = median(&mut margins) {
+                self.typical_margin = typical;
             }
         }
         self.estimate_missing_normals(&pass);

@@ -14,6 +14,7 @@ use super::input::{Skip, require_finite, require_normal_neighbours, require_poin
 use super::units::Units;
 use crate::error::Error;
 use crate::geometry::{NonFinite, Point, is_finite};
+use crate::median::median;
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
@@ -329,11 +330,7 @@ impl PreparedTarget {
                 .map(|p| self.index.nearest_two(p).2)
                 .filter(|d| d.is_finite())
                 .collect();
-            if gaps.is_empty() {
-                return 0.0;
-            }
-            let mid = gaps.len() / 2;
-            *gaps.select_nth_unstable_by(mid, f64::total_cmp).1
+            median(&mut gaps).unwrap_or(0.0)
         })
     }
 
@@ -554,8 +551,7 @@ mod tests {
                     .fold(f64::INFINITY, f64::min)
             })
             .collect();
-        let mid = gaps.len() / 2;
-        let median = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let median = median(&mut gaps).unwrap();
         assert_eq!(target.spacing(), median);
         assert_eq!(target.spacing(), median, "kept");
         let n = probes.len() as f64;

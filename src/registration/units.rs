@@ -164,11 +164,7 @@ impl Units {
 
 /// Median of the values (NaN-free input; 0 for none).
 fn median(mut values: Vec<f64>) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mid = values.len() / 2;
-    *values.select_nth_unstable_by(mid, f64::total_cmp).1
+    crate::median::median(&mut values).unwrap_or(0.0)
 }
 
 #[cfg(test)]

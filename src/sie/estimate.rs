@@ -3,6 +3,7 @@
 
 use super::{ARITHMETIC_LIMIT, HistogramModel, SieEstimator, SieOptions};
 use crate::error::Error;
+use crate::median::median;
 use crate::memory;
 
 /// Standalone SIE fits a histogram: below this many rows there is no peak to fit, and the
@@ -160,14 +161,8 @@ const SAFE: f64 = 1e30;
 /// 1, or the median residual magnitude when that lies outside the safe range.
 fn residual_unit(residuals: &[f64]) -> f64 {
     let mut magnitudes: Vec<f64> = residuals.iter().map(|r| r.abs()).filter(|r| *r > 0.0).collect();
-    if magnitudes.is_empty() {
-        return 1.0;
-    }
-    let mid = magnitudes.len() / 2;
-    let median = *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1;
-    if (1.0 / SAFE..=SAFE).contains(&median) {
-        1.0
-    } else {
-        median
+    match median(&mut magnitudes) {
+        Some(typical) if !(1.0 / SAFE..=SAFE).contains(&typical) => typical,
+        _ => 1.0,
     }
 }

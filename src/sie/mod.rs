@@ -22,6 +22,7 @@ pub mod shape;
 pub mod significance;
 pub(crate) mod starts;
 
+use crate::median::median;
 use histogram::Residuals;
 pub use histogram::{HistogramModel, ModelWidth};
 use shape::GeneralisedGaussian;
@@ -233,7 +234,7 @@ impl SieEstimator {
                     HistogramMode::Pooled => (0.0, root_mean_square(residuals.iter().copied())),
                     HistogramMode::PerColumn => {
                         let mut column: Vec<f64> = residuals.iter().skip(j).step_by(cols).copied().collect();
-                        let mu = median(&mut column);
+                        let mu = median(&mut column).unwrap_or(0.0);
                         (mu, root_mean_square(column.iter().map(|r| r - mu)))
                     }
                 };
@@ -450,15 +451,6 @@ pub(crate) fn root_mean_square(values: impl Iterator<Item = f64>) -> f64 {
     if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 
-/// Median (reorders the slice); 0 for no data.
-pub(crate) fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mid = values.len() / 2;
-    let (_, m, _) = values.select_nth_unstable_by(mid, f64::total_cmp);
-    *m
-}
 
 #[cfg(test)]
 mod tests {
