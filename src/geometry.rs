@@ -3,8 +3,7 @@
 //! point-to-plane.
 use nalgebra::{Matrix3, Matrix4, Matrix6, Rotation3, SymmetricEigen, Vector3, Vector6};
 
-/// A 3-D point (or vector), in the caller's units.
-pub type Point = [f64; 3];
+use crate::Point;
 
 /// How far RᵀR of a given rigid transform may be from I (max |RᵀR − I|): the rotation block is
 /// then made exactly orthonormal. Published ground truths are orthonormal only to the digits
@@ -33,20 +32,7 @@ pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
     ]
 }
 
-/// What to do with input points that have a NaN or infinite coordinate: the one policy of
-/// every entry point (file readers, the registrations, prepared targets, the C ABI).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum NonFinite {
-    /// Fail, naming the first such point.
-    #[default]
-    Reject,
-    /// Drop them: depth images and PCL clouds with `is_dense = false` mark invalid points with
-    /// NaN. A registration reports a dropped source point with probability 0 and no match, and
-    /// a non-finite target normal counts as "no normal".
-    Skip,
-}
-
-/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind [`NonFinite`].
+/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind [`NonFinite`](crate::NonFinite).
 #[inline]
 pub fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())

@@ -14,7 +14,8 @@ use pcd_rs::{DynReader, DynRecord, Field};
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use crate::geometry::{NonFinite, Point, first_non_finite, is_finite};
+use crate::geometry::{first_non_finite, is_finite};
+use crate::{NonFinite, Point};
 
 /// A cloud read from a file.
 #[derive(Clone, Debug, PartialEq)]

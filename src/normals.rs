@@ -1,6 +1,7 @@
 //! Surface normals by k-nearest-neighbour PCA, for point-to-plane ICP when the target cloud
 //! comes without normals.
-use crate::geometry::{Point, cross, dot, splitmix64};
+use crate::Point;
+use crate::geometry::{cross, dot, splitmix64};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
 

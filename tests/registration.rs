@@ -10,7 +10,7 @@ use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
     CloudRole, CostFunction, Error, HistogramMode, Hooks, Metric, NoiseModel, NoiseScales, NoiseShape, Point,
-    RegistrationConfig, Starts, StopReason, register_clouds, register_correspondences,
+    RegistrationConfig, StartKind, Starts, StopReason, register_clouds, register_correspondences,
 };
 
 fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
@@ -604,5 +604,38 @@ fn fewer_than_ten_residuals_are_all_taken_as_inliers_without_a_peak() {
             ),
             other => panic!("{residuals:?}: {other:?}"),
         }
+    }
+}
+
+/// A caller who fixes β₀ gets one run from the initial guess, starting at that β₀, for given
+/// pairs as for clouds (`sie.h`: "a fixed initial beta runs once from the initial guess"). The
+/// correspondence search used to run anyway and start each of its poses at its own β₀.
+#[test]
+fn a_fixed_initial_beta_runs_once_from_the_initial_guess() {
+    let fixed_beta = 0.3;
+    let config = RegistrationConfig {
+        initial_beta: Some(fixed_beta),
+        record_trace: true,
+        ..RegistrationConfig::default()
+    };
+    let data = paper_simulation(100, 300, 0.01, &small_motion(), 4);
+    let pairs =
+        register_correspondences(&data.source, &data.target, None, &config, Hooks::default()).unwrap();
+    let scene = room_scene(3_000, 0.01, 2);
+    let clouds = register_clouds(
+        &scene.source,
+        &scene.target,
+        None,
+        None,
+        &config,
+        Hooks::default(),
+    )
+    .unwrap();
+    for (what, result) in [("pairs", &pairs), ("clouds", &clouds)] {
+        assert_eq!(result.search.starts_run, 1, "{what}: {:?}", result.search);
+        assert_eq!(result.search.hypotheses, 0, "{what}: {:?}", result.search);
+        assert_eq!(result.search.start, StartKind::InitialGuess, "{what}");
+        // Constant noise and moderate coordinates: normalised units are the input's.
+        assert_eq!(result.trace[0].beta, fixed_beta, "{what}: β₀ of the first update");
     }
 }

@@ -7,9 +7,10 @@ use nalgebra::Matrix4;
 
 use super::boundary::FfiError;
 use super::{sie_status, sie_summary};
-use crate::geometry::{NonFinite, Point, Rigid, is_finite};
+use crate::WarmStart;
+use crate::geometry::{Rigid, is_finite};
 use crate::memory::try_vec;
-use crate::registration::WarmStart;
+use crate::{NonFinite, Point};
 
 /// The scalar types point arrays come in.
 pub(crate) trait Coordinate: Copy {

@@ -30,7 +30,7 @@ use std::ffi::{CStr, CString};
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::registration::{RegistrationConfig, RegistrationResult};
+use crate::{RegistrationConfig, RegistrationResult};
 use boundary::{FfiError, static_c_str, without_context};
 use callback::{NoiseCallback, ProgressCallback};
 

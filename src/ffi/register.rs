@@ -15,9 +15,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::geometry::Rigid;
 use crate::noise::NoiseScales;
-use crate::registration::{
-    Error, Hooks, NonFinite, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry,
-};
+use crate::registration::register_owned_clouds;
+use crate::{Error, Hooks, NonFinite, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry};
 
 /// A strided array of three coordinates per point, as passed by C.
 #[derive(Clone, Copy)]
@@ -134,14 +133,7 @@ unsafe fn register_clouds_from<T: Coordinate>(
                 out_t_target_source,
                 init,
                 |config, hooks, init| {
-                    crate::registration::register_owned_clouds(
-                        source_points,
-                        target_points,
-                        normals,
-                        init,
-                        config,
-                        hooks,
-                    )
+                    register_owned_clouds(source_points, target_points, normals, init, config, hooks)
                 },
             )
         }
@@ -177,13 +169,7 @@ unsafe fn register_correspondences_from<T: Coordinate>(
                 out_t_target_source,
                 init,
                 |config, hooks, init| {
-                    crate::registration::register_correspondences(
-                        &source_points,
-                        &target_points,
-                        init,
-                        config,
-                        hooks,
-                    )
+                    crate::register_correspondences(&source_points, &target_points, init, config, hooks)
                 },
             )
         }

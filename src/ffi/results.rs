@@ -8,8 +8,8 @@ use super::{
     ContextState, sie_context, sie_model, sie_start_kind, sie_status, sie_stop_reason, sie_summary,
     sie_trace_entry, sie_verdict,
 };
-use crate::registration::{RegistrationResult, StartKind, StopReason, Verdict};
 use crate::sie::{HistogramModel, ModelWidth};
+use crate::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
 
 fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> {
     state.result.as_ref().ok_or_else(|| {
@@ -102,7 +102,7 @@ pub(crate) fn model_of(histogram: &HistogramModel) -> sie_model {
     }
 }
 
-pub(crate) fn trace_entry_of(entry: &crate::registration::TraceEntry) -> sie_trace_entry {
+pub(crate) fn trace_entry_of(entry: &TraceEntry) -> sie_trace_entry {
     sie_trace_entry {
         sigma: entry.sigma,
         beta: entry.beta,

@@ -12,8 +12,8 @@ use super::{
 };
 use crate::cost::CostFunction;
 use crate::noise::NoiseModel;
-use crate::registration::{Metric, NonFinite, RegistrationConfig, Starts};
 use crate::sie::{HistogramMode, NoiseShape};
+use crate::{Metric, NonFinite, RegistrationConfig, Starts};
 
 /// Student-t degrees of freedom when the caller passes 0 (Kerl et al. 2013).
 const DEFAULT_STUDENT_T_DOF: f64 = 5.0;

@@ -6,7 +6,8 @@ use super::boundary::{FfiError, boundary, without_context};
 use super::input::{Coordinate, check_output, read_points, read_transform, write_output};
 use super::register::run_and_store;
 use super::{sie_context, sie_status};
-use crate::registration::{PrepareOptions, PreparedTarget, register_owned_to};
+use crate::registration::register_owned_to;
+use crate::{PrepareOptions, PreparedTarget};
 
 /// A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
 /// (given, or estimated by the registrations that reach them and kept for later ones).

@@ -10,8 +10,8 @@ use nalgebra::Matrix4;
 use super::boundary::{FfiError, boundary};
 use super::input::{read_points, read_transform, row_major, write_buffer};
 use super::*;
+use crate::NonFinite;
 use crate::cost::CostFunction;
-use crate::geometry::NonFinite;
 use crate::registration::{
     Metric, Quality, RegistrationResult, SearchReport, StartKind, Starts, StopReason, TraceEntry, Verdict,
 };
@@ -1294,7 +1294,7 @@ fn estimate_rejects_bad_input_before_running() {
 }
 
 /// Packed float triples of a synthetic room scene, for full registrations through the ABI.
-fn packed(points: &[crate::geometry::Point]) -> Vec<f32> {
+fn packed(points: &[crate::Point]) -> Vec<f32> {
     points.iter().flat_map(|p| p.map(|v| v as f32)).collect()
 }
 

@@ -5,8 +5,9 @@ use nalgebra::Matrix4;
 
 use super::{RegistrationConfig, RegistrationResult};
 use crate::error::Error;
-use crate::geometry::{NonFinite, Point, first_non_finite, is_finite};
+use crate::geometry::{first_non_finite, is_finite};
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
+use crate::{NonFinite, Point};
 
 /// Which points the caller asked to drop before registering (`non_finite`, `skip_origin`).
 #[derive(Clone, Copy, Debug)]
@@ -140,6 +141,15 @@ pub fn checked_initial_guess(init: Option<&Matrix4<f64>>) -> Result<Matrix4<f64>
     };
     crate::geometry::check_rigid(t, "initial guess").map_err(Error::InvalidArgument)?;
     Ok(crate::geometry::orthonormalised(t))
+}
+
+/// The per-point σ that were given, for `Units::choose`.
+pub(crate) fn sigma_slices<'a>(source: &'a Option<Vec<f64>>, target: &'a Option<Vec<f64>>) -> Vec<&'a [f64]> {
+    [source, target]
+        .into_iter()
+        .flatten()
+        .map(Vec::as_slice)
+        .collect()
 }
 
 /// Per-point σ of both clouds (§4.4), or `None` when noise is constant.

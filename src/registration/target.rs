@@ -13,11 +13,12 @@ use std::time::Instant;
 use super::input::{Skip, require_finite, require_normal_neighbours, require_points, require_unit_normals};
 use super::units::Units;
 use crate::error::Error;
-use crate::geometry::{NonFinite, Point, is_finite};
+use crate::geometry::is_finite;
 use crate::median::median;
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
+use crate::{NonFinite, Point};
 
 /// Indices are u32 with u32::MAX reserved for "no match".
 pub(crate) const NO_MATCH: u32 = u32::MAX;

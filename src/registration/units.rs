@@ -7,8 +7,11 @@
 
 use nalgebra::{Matrix4, Vector3};
 
-use super::{RegistrationConfig, RegistrationResult, TraceEntry, WarmStart};
-use crate::geometry::{Point, from_parts, rotation_part, translation_part};
+use super::config::RegistrationConfig;
+use super::result::{RegistrationResult, TraceEntry};
+use crate::Point;
+use crate::geometry::{from_parts, rotation_part, translation_part};
+use crate::sie::WarmStart;
 
 /// Coordinates, and noise scales, whose magnitudes lie in [1/SAFE, SAFE] are used as given:
 /// squares of differences stay far from overflow and underflow.

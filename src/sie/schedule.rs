@@ -111,16 +111,35 @@ const WARM_HELD_TOLERANCE: f64 = 0.1;
 /// How β starts and shrinks (§4.3).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BetaSchedule {
-    /// β₀ in normalised units; `None`: the RMS of the first residuals (§4.3, "approximated as
-    /// the standard deviation of the initial set of residuals").
-    pub initial: Option<f64>,
+    /// Where β starts.
+    pub start: BetaStart,
     /// β ← shrink·β after each level converges (§4.3: 0.5).
     pub shrink: f64,
     /// Annealing ends when β_j < stop_ratio·σ_j for every histogram ("until β ≪ σ").
     pub stop_ratio: f64,
-    /// Start from this noise model with β₀ = WARM_BETA_WIDTHS·σ (overrides `initial`), and
-    /// end annealing at β < σ/2 with β set to 0 for the final round.
-    pub warm: Option<WarmStart>,
+}
+
+/// β₀ (§4.3 leaves it open: "prior knowledge about the uncertainty of T or … the standard
+/// deviation of the initial set of residuals").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BetaStart {
+    /// The RMS of the first residuals of each histogram (the paper's suggestion).
+    ResidualRms,
+    /// This β₀ (normalised units) for every histogram.
+    Fixed(f64),
+    /// From this noise model with β₀ = WARM_BETA_WIDTHS·σ; annealing ends at β < σ/2 with β set
+    /// to 0 for the final round.
+    Warm(WarmStart),
+}
+
+impl BetaSchedule {
+    /// The warm start's noise model, when β starts from one.
+    fn warm(&self) -> Option<WarmStart> {
+        match self.start {
+            BetaStart::Warm(warm) => Some(warm),
+            _ => None,
+        }
+    }
 }
 
 /// Where the schedule stands.
@@ -220,13 +239,13 @@ impl Schedule {
         if !self.started {
             self.started = true;
             estimator.prepare(normalised, cols);
-            let beta = match (self.beta.warm, self.beta.initial) {
-                (Some(warm), _) => {
+            let beta = match self.beta.start {
+                BetaStart::Warm(warm) => {
                     estimator.set_model(warm.sigma, warm.penalty, warm.noise_shape);
                     vec![WARM_BETA_WIDTHS * warm.sigma]
                 }
-                (None, Some(b)) => vec![b],
-                (None, None) => estimator.residual_rms(normalised, cols),
+                BetaStart::Fixed(b) => vec![b],
+                BetaStart::ResidualRms => estimator.residual_rms(normalised, cols),
             };
             estimator.set_beta(&beta);
         }
@@ -299,7 +318,7 @@ impl Schedule {
             Phase::Annealing => {
                 self.level_updates += 1;
                 self.level_motion += displacement;
-                let warm_guess_held = self.beta.warm.is_some()
+                let warm_guess_held = self.beta.warm().is_some()
                     && self.first_level
                     && self.level_motion <= WARM_HELD_WIDTHS * self.width();
                 // Such a first level only seeds the final round, which refines to the full
@@ -309,13 +328,13 @@ impl Schedule {
                     self.level_updates = 0;
                     self.level_motion = 0.0;
                     self.first_level = false;
-                    let stop_ratio = match self.beta.warm {
+                    let stop_ratio = match self.beta.warm() {
                         Some(_) => WARM_FINAL_RATIO,
                         None => self.beta.stop_ratio,
                     };
                     if warm_guess_held || self.estimator.beta_negligible(stop_ratio) {
                         self.phase = Phase::Final;
-                        if self.beta.warm.is_some() {
+                        if self.beta.warm().is_some() {
                             self.estimator.set_beta(&[0.0]);
                         }
                     } else {

@@ -1,363 +1,28 @@
-//! The two registration problems the IRLS driver solves: fixed correspondences and ICP.
-//! Each produces residual rows at a transform and solves the weighted step; buffers are reused
-//! across iterations (no per-correspondence allocation per iteration).
+//! ICP: nearest-neighbour correspondences onto a prepared target (kd-tree and normals shared,
+//! see `PreparedTarget`), matched in passes over subsets of the source with cached queries.
+
 use std::time::Instant;
 
 use nalgebra::Matrix4;
 use rand::SeedableRng;
 
-use super::target::{NO_MATCH, PreparedTarget, sort_along_curve};
-use super::{Metric, RegistrationConfig};
+use super::matches::{Margin, Match, NEVER_QUERIED, Pass};
+use super::{
+    Problem, RowScales, Rows, StepPoints, noise_scale, probe_points_of, rms_displacement, typical_magnitude,
+};
+use crate::Point;
 use crate::geometry::{
-    Point, Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit,
-    weighted_rigid_fit_by,
+    Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit_by,
 };
 use crate::median::median;
-use crate::noise::combine;
 use crate::parallel::Workers;
-
-/// The noise scale F of each row (§4.4).
-#[derive(Clone, Debug, Default)]
-pub enum RowScales {
-    /// Every F is 1 (constant noise, ICP's default): 8 bytes a row not stored, and the
-    /// residuals are their own normalised values (no copy).
-    #[default]
-    Unit,
-    PerRow(Vec<f64>),
-}
-
-impl RowScales {
-    /// F of `row`.
-    pub fn get(&self, row: usize) -> f64 {
-        match self {
-            RowScales::Unit => 1.0,
-            RowScales::PerRow(scales) => scales[row],
-        }
-    }
-
-    /// The scales row by row; `None` when every F is 1.
-    pub fn per_row(&self) -> Option<&[f64]> {
-        match self {
-            RowScales::Unit => None,
-            RowScales::PerRow(scales) => Some(scales),
-        }
-    }
-
-    /// The median F (1 when every F is 1 or there are no rows).
-    pub fn median(&self) -> f64 {
-        match self.per_row() {
-            Some(scales) => median(&mut scales.to_vec()).unwrap_or(1.0),
-            None => 1.0,
-        }
-    }
-
-    fn push(&mut self, scale: f64) {
-        if let RowScales::PerRow(scales) = self {
-            scales.push(scale);
-        }
-    }
-
-    fn clear(&mut self) {
-        if let RowScales::PerRow(scales) = self {
-            scales.clear();
-        }
-    }
-
-    fn reserve_exact(&mut self, rows: usize) {
-        if let RowScales::PerRow(scales) = self {
-            scales.reserve_exact(rows);
-        }
-    }
-}
-
-/// Residual rows of one iteration.
-#[derive(Default)]
-pub struct Rows {
-    /// Number of rows.
-    count: usize,
-    /// Source point of each row; empty for the rows of an ICP update, which the solver reads
-    /// through its pass (8 bytes a row less at the registration's peak).
-    pub source: Vec<u32>,
-    /// Matched target point of each row; empty where `source` is.
-    pub target: Vec<u32>,
-    /// Residuals, rows × cols, input units.
-    pub residual: Vec<f64>,
-    /// Noise scale F of each row (§4.4).
-    pub scale: RowScales,
-    /// Source points this pass looked at; the rows are those of them that found a residual
-    /// (matched and, point-to-plane, with a target normal). Inlier fractions divide by it.
-    pub considered: usize,
-}
-
-impl Rows {
-    pub fn len(&self) -> usize {
-        self.count
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.count == 0
-    }
-
-    fn clear(&mut self) {
-        self.count = 0;
-        self.source.clear();
-        self.target.clear();
-        self.residual.clear();
-        self.scale.clear();
-        self.considered = 0;
-    }
-
-    /// Room for `rows` rows of `cols` residuals, exactly: grown by doubling, the rows of 10 M
-    /// points would hold room for 16.7 M (160 MiB more). Without `indexed`, the room of
-    /// `source` and `target` is freed.
-    fn reserve_exact(&mut self, rows: usize, cols: usize, indexed: bool) {
-        if indexed {
-            self.source.reserve_exact(rows);
-            self.target.reserve_exact(rows);
-        } else {
-            self.source = Vec::new();
-            self.target = Vec::new();
-        }
-        self.residual.reserve_exact(rows * cols);
-        self.scale.reserve_exact(rows);
-    }
-}
-
-pub trait Problem {
-    /// Residual dimensions m.
-    fn cols(&self) -> usize;
-    /// Whether the pairs change with the transform (ICP re-matches; given correspondences do
-    /// not).
-    fn rematches(&self) -> bool;
-    fn source_count(&self) -> usize;
-    /// At most [`PROBE_POINTS`] source points, evenly strided in the caller's order: where
-    /// two transforms are compared (`moved_apart`).
-    fn probe_points(&self) -> &[Point];
-    /// Typical coordinate magnitude of the source points, the median of max |x|, |y|, |z|
-    /// (sets the arithmetic's resolution; a garbage point far out does not).
-    fn coordinate_magnitude(&self) -> f64;
-    /// Centre of the source points (where update sizes are measured): the per-axis median,
-    /// which a far-off garbage point does not move.
-    fn source_anchor(&self) -> Point;
-    /// (Re)matches at `transform` and fills the rows used for fitting.
-    fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows;
-    /// The rows of the last `linearise`.
-    fn rows(&self) -> &Rows;
-    /// Weighted least-squares step from `transform` with one weight per row.
-    fn solve(&mut self, transform: &Matrix4<f64>, weights: &[f64]) -> Option<Solve>;
-    /// RMS over the rows of ‖(new − old)·a_i‖ / F_i: how far the update moved the data,
-    /// in the normalised units σ is measured in.
-    fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64;
-    /// Rows for every source point (no sampling) at `transform`, for the reported results.
-    fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows;
-    /// The last rows' source and target indices, for their last reader. ICP takes them and
-    /// frees the rows (empty until the next linearise or evaluation); fixed correspondences,
-    /// whose rows are built once and reused, give copies.
-    fn take_row_indices(&mut self) -> (Vec<u32>, Vec<u32>) {
-        let rows = self.rows();
-        (rows.source.clone(), rows.target.clone())
-    }
-    /// Told before each `linearise` whether β is being annealed: ICP then matches only a
-    /// coarse subset of large samples. No-op by default.
-    fn set_annealing(&mut self, _annealing: bool) {}
-    /// Seconds spent so far building the index and estimating normals (ICP only; normals are
-    /// estimated as matching reaches them, so the second value grows).
-    fn setup_seconds(&self) -> (f64, f64) {
-        (0.0, 0.0)
-    }
-}
-
-fn noise_scale(source_sigma: &Option<Vec<f64>>, target_sigma: &Option<Vec<f64>>, s: usize, t: usize) -> f64 {
-    match (source_sigma, target_sigma) {
-        (Some(a), Some(b)) => combine(a[s], b[t]),
-        _ => 1.0,
-    }
-}
-
-/// RMS over the rows of ‖(new − old)·a_i‖ / F_i, from each row's source point a_i =
-/// `source(i)` (i < `count`) and scale F_i.
-fn rms_displacement(
-    count: usize,
-    source: impl Fn(usize) -> Point,
-    scales: &RowScales,
-    old: &Matrix4<f64>,
-    new: &Matrix4<f64>,
-) -> f64 {
-    if count == 0 {
-        return 0.0;
-    }
-    let difference = new - old;
-    let sum: f64 = (0..count)
-        .map(|i| {
-            let f = scales.get(i);
-            let d = transform_point(&difference, &source(i));
-            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) / (f * f)
-        })
-        .filter(|v| v.is_finite())
-        .sum();
-    (sum / count as f64).sqrt()
-}
-
-/// How many source points [`Problem::probe_points`] holds at most.
-pub const PROBE_POINTS: usize = 1024;
-
-/// Every `len.div_ceil(PROBE_POINTS)`-th point, from the first.
-fn probe_points_of(points: &[Point]) -> Vec<Point> {
-    let step = points.len().div_ceil(PROBE_POINTS).max(1);
-    points.iter().step_by(step).copied().collect()
-}
-
-/// Median over the points of their largest coordinate magnitude.
-fn typical_magnitude(points: &[Point]) -> f64 {
-    let mut magnitudes: Vec<f64> = points
-        .iter()
-        .map(|p| p.iter().fold(0.0f64, |m, v| m.max(v.abs())))
-        .collect();
-    median(&mut magnitudes).unwrap_or(0.0)
-}
-
-/// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
-pub struct CorrespondenceProblem<'a> {
-    source: &'a [Point],
-    probe: Vec<Point>,
-    pairs: Vec<(Point, Point)>,
-    rows: Rows,
-}
-
-impl<'a> CorrespondenceProblem<'a> {
-    pub fn new(
-        source: &'a [Point],
-        target: &'a [Point],
-        source_sigma: Option<Vec<f64>>,
-        target_sigma: Option<Vec<f64>>,
-    ) -> Self {
-        let n = source.len();
-        let rows = Rows {
-            count: n,
-            source: (0..n as u32).collect(),
-            target: (0..n as u32).collect(),
-            residual: vec![0.0; 3 * n],
-            scale: RowScales::PerRow(
-                (0..n)
-                    .map(|i| noise_scale(&source_sigma, &target_sigma, i, i))
-                    .collect(),
-            ),
-            considered: n,
-        };
-        CorrespondenceProblem {
-            source,
-            probe: probe_points_of(source),
-            pairs: source.iter().copied().zip(target.iter().copied()).collect(),
-            rows,
-        }
-    }
-}
-
-impl Problem for CorrespondenceProblem<'_> {
-    fn rematches(&self) -> bool {
-        false
-    }
-
-    fn cols(&self) -> usize {
-        3
-    }
-
-    fn source_count(&self) -> usize {
-        self.source.len()
-    }
-
-    fn probe_points(&self) -> &[Point] {
-        &self.probe
-    }
-
-    fn coordinate_magnitude(&self) -> f64 {
-        typical_magnitude(self.source)
-    }
-
-    fn source_anchor(&self) -> Point {
-        crate::geometry::median_point(self.source)
-    }
-
-    fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {
-        for ((a, b), r) in self.pairs.iter().zip(self.rows.residual.chunks_exact_mut(3)) {
-            let p = transform_point(transform, a);
-            r.copy_from_slice(&[p[0] - b[0], p[1] - b[1], p[2] - b[2]]);
-        }
-        &self.rows
-    }
-
-    fn rows(&self) -> &Rows {
-        &self.rows
-    }
-
-    fn solve(&mut self, _transform: &Matrix4<f64>, weights: &[f64]) -> Option<Solve> {
-        weighted_rigid_fit(&self.pairs, weights)
-    }
-
-    fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64 {
-        rms_displacement(self.source.len(), |i| self.source[i], &self.rows.scale, old, new)
-    }
-
-    fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
-        self.linearise(transform)
-    }
-}
-
-/// A nearest-neighbour match of one source point: the transformed source point and what the
-/// last kd-tree query for it found, so that later iterations can skip the query when it
-/// cannot have changed.
-///
-/// Exact skip test: the last query at position q found the nearest target at distance d₁ and
-/// the second nearest at d₂. If the point has since moved by δ = |T·p − q|, every other target
-/// is at least d₂ − δ away and the old nearest at most d₁ + δ, so it is still the nearest when
-/// 2δ < d₂ − d₁. Late ICP iterations move points by far less than the gap, so most queries
-/// become one 3×4 product.
-/// The moved point T·p itself is not kept (24 bytes a point): rows and the solver recompute it
-/// from the pass's copy of p, bit for bit.
-/// 8 bytes a source point (the margin and the history index in 16 bits each).
-#[derive(Clone, Copy)]
-struct Match {
-    /// Nearest target at the last query.
-    nearest: u32,
-    /// `history` index of the transform of the last query (NEVER_QUERIED: none).
-    queried_at: u16,
-    /// d₂ − d₁ at the last query, rounded down.
-    margin: Margin,
-}
-
-/// The history is cleared (every cached query dropped) when it reaches this many transforms.
-const NEVER_QUERIED: u16 = u16::MAX;
-
-/// A non-negative distance in 16 bits: the upper half of its f32 (8 bits of mantissa, the
-/// full exponent range), rounded towards zero, so never above the distance it stands for and
-/// the skip test stays exact. Within 0.8 % below: a few more queries, no other change.
-#[derive(Clone, Copy)]
-struct Margin(u16);
-
-impl Margin {
-    /// "Query again".
-    const ZERO: Margin = Margin(0);
-
-    /// The largest margin at most `distance` (≥ 0; ∞ and values beyond f32 give f32::MAX's).
-    fn at_most(distance: f64) -> Margin {
-        let narrowed = if distance.is_finite() {
-            // Rounded to nearest, so possibly up by 6e-8 relative: callers leave room for it.
-            (distance as f32).clamp(0.0, f32::MAX)
-        } else {
-            f32::MAX
-        };
-        Margin((narrowed.to_bits() >> 16) as u16)
-    }
-
-    fn get(self) -> f64 {
-        f64::from(f32::from_bits(u32::from(self.0) << 16))
-    }
-}
+use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
+use crate::registration::{Metric, RegistrationConfig, StageTimes};
 
 /// While β is annealed the fit needs the basin, not the last digit: at most this many source
 /// points are matched then (σ/√5000 is far below any β level, and the histogram still has
-/// 125 bins of 40 samples), all of them afterwards. Fewer than 20 000 costs no accuracy and
-/// saves about 30 % (see docs/performance.md, "Design measurements behind the code").
+/// 125 bins of 40 samples), all of them afterwards (docs/performance.md, "Design measurements
+/// behind the code", has what fewer or more cost).
 const COARSE_POINTS: usize = 5_000;
 
 /// Every ⌈len / limit⌉-th index of `sample` on average, picked by a hash of the index (curve
@@ -375,75 +40,59 @@ fn hashed_subset(sample: &[u32], limit: usize, seed: u64) -> Vec<u32> {
 }
 
 /// The verdict's evidence (the residuals at the initial guess and at the result displaced along
-/// each axis, `Evidence`) is a mean over residuals: about this many source points give it. On
-/// 5 000 its passes (three displaced ones, which also reach targets without normals) were 24 %
-/// of a warm odometry frame at 10 k points (perf). From 5 000 to 1 000, the significance of the
-/// real-scan SIE runs moved by 0.2 % (median; 10–90 %: −2.4 % to +2.7 %) and no success or
-/// verdict changed there, on the paper's grid or on the families beyond it (2026-12-01).
+/// each axis, `verdict::Evidence`) is a mean over residuals that enters the significance
+/// through a logarithm: about this many source points give it as well as every point does, at
+/// a fraction of the matching (docs/performance.md, item 14, has the measurements).
 const EVIDENCE_POINTS: usize = 1_000;
-
-/// What the driver's next runs on a [`CloudProblem`] are for.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub enum RunKind {
-    /// A lead run (its end is only a start for SIE): every update on the coarse subset.
-    Lead,
-    /// A registration: the coarse subset only while β is annealed.
-    Registration,
-}
 
 /// Why the source is matched: for an IRLS step (the sample or its coarse subset, with the
 /// solver's per-row terms), for the final evaluation (every source point, not solved), or for
 /// the evidence a result is judged by (see [`CloudProblem::evaluate_evidence`]).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Purpose {
-    Solve,
+    Step(StepPoints),
     Evaluate,
     Evidence,
 }
 
+/// The passes of a cloud problem: the subsets of the source points matched together.
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Which {
+enum Subset {
+    /// Every source point, or the caller's random sample of them (`max_correspondences`).
     Sample,
+    /// At most COARSE_POINTS of the sample, for steps while searching.
     Coarse,
+    /// About EVIDENCE_POINTS of the sample, for the verdict's evidence.
     Evidence,
+    /// Every source point, for the final evaluation when the sample is smaller.
     Everything,
 }
 
-/// Source points matched together, in curve order, with their cached queries.
-#[derive(Default)]
-struct Pass {
-    order: Vec<u32>,
-    /// `source[order[k]]`: a copy in pass order, so each iteration reads the points
-    /// sequentially instead of once per cache line at random (1 M points: 24 MB).
-    points: Vec<Point>,
-    /// Allocated at the pass's first matching: the everything pass of a sampled source is
-    /// built while the caller's source still exists, and its 8 bytes a point would otherwise
-    /// add to that moment's peak (at 10 M points, the registration's peak).
-    matches: Vec<Match>,
+/// Seconds a registration spent on its target: building it (when this call prepared it), and
+/// estimating normals (the scale up front, then each normal when matching first reaches its
+/// point), with the part spent inside the steps' matching and the final evaluation.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct SetupTime {
+    index: f64,
+    normals: f64,
+    normals_in_steps: f64,
+    normals_in_evaluation: f64,
 }
 
-impl Pass {
-    fn new(source: &[Point], order: Vec<u32>) -> Self {
-        let points = order.iter().map(|&i| source[i as usize]).collect();
-        Pass {
-            order,
-            points,
-            matches: Vec::new(),
-        }
+impl SetupTime {
+    /// Completes the stage times of a run that began at `before`: the index and the normals
+    /// so far, and the normals its matching and evaluation reached moved out of those stages.
+    pub(crate) fn complete(&self, before: &SetupTime, times: &mut StageTimes) {
+        times.index = self.index;
+        times.normals = self.normals;
+        times.matching -= self.normals_in_steps - before.normals_in_steps;
+        times.evaluation -= self.normals_in_evaluation - before.normals_in_evaluation;
     }
-}
-
-impl Match {
-    const EMPTY: Match = Match {
-        nearest: NO_MATCH,
-        queried_at: NEVER_QUERIED,
-        margin: Margin::ZERO,
-    };
 }
 
 /// ICP: nearest-neighbour correspondences onto a prepared target (kd-tree and normals shared,
 /// see `PreparedTarget`); this part is per registration.
-pub struct CloudProblem<'a> {
+pub(crate) struct CloudProblem<'a> {
     /// Source points (kept ones); the problem holds them only in pass order, so a caller that
     /// owns its copy can drop it once the problem is built.
     source_count: usize,
@@ -464,9 +113,6 @@ pub struct CloudProblem<'a> {
     /// A fixed subset of `sample` (about EVIDENCE_POINTS) for the verdict's evidence; empty
     /// when the sample is small enough.
     evidence: Pass,
-    use_coarse: bool,
-    /// A lead run (its end is only a start for SIE): every update on the coarse subset.
-    lead_only: bool,
     /// Every source point, for the final evaluation when `sample` is a subset (empty
     /// otherwise).
     everything: Pass,
@@ -487,16 +133,15 @@ pub struct CloudProblem<'a> {
     /// (4 bytes a row instead of copies: 96 bytes a row for point-to-plane).
     row_pass: Vec<u32>,
     /// The pass `row_pass` indexes, and the transform it was matched at.
-    solved_pass: Which,
+    solved_pass: Subset,
     linearised: Matrix4<f64>,
-    /// Seconds this registration spent building the target (0 for a target prepared before).
-    index_seconds: f64,
-    normals_seconds: f64,
+    /// Seconds this registration spent on its target.
+    setup: SetupTime,
 }
 
 impl<'a> CloudProblem<'a> {
     /// `index_seconds`: what preparing `target` cost, when this registration prepared it.
-    pub fn new(
+    pub(crate) fn new(
         source: &[Point],
         target: &'a PreparedTarget,
         source_sigma: Option<Vec<f64>>,
@@ -512,7 +157,7 @@ impl<'a> CloudProblem<'a> {
                 NO_MATCH - 1
             ));
         }
-        let normals_seconds = match config.metric {
+        let scale_seconds = match config.metric {
             Metric::PointToPlane => target.prepare_normal_estimation(&workers),
             Metric::PointToPoint => 0.0,
         };
@@ -544,8 +189,6 @@ impl<'a> CloudProblem<'a> {
             sample: Pass::new(source, sample),
             coarse: Pass::new(source, coarse),
             evidence: Pass::new(source, evidence),
-            use_coarse: false,
-            lead_only: false,
             everything,
             source_sigma,
             target_sigma,
@@ -558,22 +201,25 @@ impl<'a> CloudProblem<'a> {
                 ..Rows::default()
             },
             row_pass: Vec::new(),
-            solved_pass: Which::Sample,
+            solved_pass: Subset::Sample,
             linearised: Matrix4::identity(),
-            index_seconds,
-            normals_seconds,
+            setup: SetupTime {
+                index: index_seconds,
+                normals: scale_seconds,
+                ..SetupTime::default()
+            },
         })
     }
 
     /// The pass `purpose` matches: for a step the sample (or its coarse subset while β is
     /// annealed), for the final evaluation every source point, for evidence the evidence subset
     /// (the sample when that is small enough).
-    fn pass_for(&mut self, purpose: Purpose) -> Which {
+    fn pass_for(&mut self, purpose: Purpose) -> Subset {
         match purpose {
-            Purpose::Evaluate if self.sample.order.len() < self.source_count => Which::Everything,
-            Purpose::Solve if self.use_coarse && !self.coarse.order.is_empty() => Which::Coarse,
-            Purpose::Evidence if !self.evidence.order.is_empty() => Which::Evidence,
-            _ => Which::Sample,
+            Purpose::Evaluate if self.sample.order.len() < self.source_count => Subset::Everything,
+            Purpose::Step(StepPoints::Coarse) if !self.coarse.order.is_empty() => Subset::Coarse,
+            Purpose::Evidence if !self.evidence.order.is_empty() => Subset::Evidence,
+            _ => Subset::Sample,
         }
     }
 
@@ -610,9 +256,9 @@ impl<'a> CloudProblem<'a> {
                 self.typical_margin = typical;
             }
         }
-        self.estimate_missing_normals(&pass);
+        self.estimate_missing_normals(&pass, purpose);
         self.fill_rows(&pass, transform, purpose);
-        if purpose == Purpose::Solve {
+        if matches!(purpose, Purpose::Step(_)) {
             self.solved_pass = which;
             self.linearised = *transform;
         }
@@ -624,17 +270,17 @@ impl<'a> CloudProblem<'a> {
     /// matches the sample; the evidence subset's, when the first update matches the coarse
     /// subset at the same initial guess). The history is shared, so each copied query keeps its
     /// exact skip test: the matches are the same as from fresh queries, only cheaper.
-    fn share_queries_into(&self, which: Which, pass: &mut Pass) {
+    fn share_queries_into(&self, which: Subset, pass: &mut Pass) {
         // The sample is the parent: coarse and evidence are subsequences of it (same order).
-        if which == Which::Everything {
+        if which == Subset::Everything {
             return;
         }
-        let parent = if which == Which::Sample {
+        let parent = if which == Subset::Sample {
             &pass.order
         } else {
             &self.sample.order
         };
-        let others: Vec<&Pass> = [Which::Sample, Which::Coarse, Which::Evidence]
+        let others: Vec<&Pass> = [Subset::Sample, Subset::Coarse, Subset::Evidence]
             .into_iter()
             .filter(|&w| w != which)
             .map(|w| self.pass(w))
@@ -668,33 +314,39 @@ impl<'a> CloudProblem<'a> {
         }
     }
 
-    fn pass(&self, which: Which) -> &Pass {
+    fn pass(&self, which: Subset) -> &Pass {
         match which {
-            Which::Sample => &self.sample,
-            Which::Coarse => &self.coarse,
-            Which::Evidence => &self.evidence,
-            Which::Everything => &self.everything,
+            Subset::Sample => &self.sample,
+            Subset::Coarse => &self.coarse,
+            Subset::Evidence => &self.evidence,
+            Subset::Everything => &self.everything,
         }
     }
 
-    fn pass_mut(&mut self, which: Which) -> &mut Pass {
+    fn pass_mut(&mut self, which: Subset) -> &mut Pass {
         match which {
-            Which::Sample => &mut self.sample,
-            Which::Coarse => &mut self.coarse,
-            Which::Evidence => &mut self.evidence,
-            Which::Everything => &mut self.everything,
+            Subset::Sample => &mut self.sample,
+            Subset::Coarse => &mut self.coarse,
+            Subset::Evidence => &mut self.evidence,
+            Subset::Everything => &mut self.everything,
         }
     }
 
     /// Estimates the normals of the targets this pass matched that have none yet.
-    fn estimate_missing_normals(&mut self, pass: &Pass) {
+    fn estimate_missing_normals(&mut self, pass: &Pass, purpose: Purpose) {
         if self.metric != Metric::PointToPlane {
             return;
         }
         let started = Instant::now();
         self.target
             .ensure_normals(pass.matches.iter().map(|m| m.nearest), &self.workers);
-        self.normals_seconds += started.elapsed().as_secs_f64();
+        let seconds = started.elapsed().as_secs_f64();
+        self.setup.normals += seconds;
+        match purpose {
+            Purpose::Step(_) => self.setup.normals_in_steps += seconds,
+            Purpose::Evaluate => self.setup.normals_in_evaluation += seconds,
+            Purpose::Evidence => {}
+        }
     }
 
     fn match_pass(&self, transform: &Matrix4<f64>, pass: &mut Pass, moves: &[Matrix4<f64>], generation: u16) {
@@ -738,14 +390,14 @@ impl<'a> CloudProblem<'a> {
             });
     }
 
-    /// The rows of the matched pairs: for [`Purpose::Solve`] with each row's index in the pass
+    /// The rows of the matched pairs: for [`Purpose::Step`] with each row's index in the pass
     /// (`row_pass`, from which the solver reads its points), otherwise with the points' indices
     /// (the caller's).
     fn fill_rows(&mut self, pass: &Pass, transform: &Matrix4<f64>, purpose: Purpose) {
         let target = self.target;
         let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
-        let solve = purpose == Purpose::Solve;
+        let solve = matches!(purpose, Purpose::Step(_));
         let rows = &mut self.rows;
         rows.clear();
         rows.considered = pass.order.len();
@@ -791,8 +443,7 @@ impl<'a> CloudProblem<'a> {
 
 /// Source points per thread's work item when matching: the matches do not depend on it, and
 /// the 5 000-point coarse passes then split evenly over two threads (20 pieces, not 4 of 1 024
-/// and one of 904). Room 10 k, 2 threads, two alternating rounds against 1 024: +2-3 %
-/// frames/s warm, 10 k pair matching 14.9 -> 13.8 ms.
+/// and one of 904; docs/performance.md, item 19, has the gain).
 const MATCH_CHUNK: usize = 256;
 
 /// A fixed, sorted random subset of `limit` source indices (all when `limit` is 0 or ≥ n), so
@@ -811,9 +462,9 @@ fn sample_indices(n: usize, limit: usize, seed: u64) -> Vec<u32> {
 }
 
 impl CloudProblem<'_> {
-    /// Runs until the next call as a lead (see `lead_only`) or as a registration.
-    pub fn set_run_kind(&mut self, kind: RunKind) {
-        self.lead_only = kind == RunKind::Lead;
+    /// Seconds this registration has spent on its target so far.
+    pub(crate) fn setup_time(&self) -> SetupTime {
+        self.setup
     }
 
     /// Rows of the evidence subset at `transform`: about EVIDENCE_POINTS source points,
@@ -821,18 +472,18 @@ impl CloudProblem<'_> {
     /// are means over residuals and enter the significance through a logarithm. Matching every
     /// source point for them took 46 % of the sequence benchmark's time at 10 k points (perf),
     /// 5 000 of them still a quarter. Leaves the other passes' cached queries alone.
-    pub fn evaluate_evidence(&mut self, transform: &Matrix4<f64>) -> &Rows {
+    pub(crate) fn evaluate_evidence(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, Purpose::Evidence);
         &self.rows
     }
 
     /// See [`PreparedTarget::spread`].
-    pub fn target_spread(&self) -> f64 {
+    pub(crate) fn target_spread(&self) -> f64 {
         self.target.spread()
     }
 
     /// See [`PreparedTarget::spacing`].
-    pub fn target_spacing(&self) -> f64 {
+    pub(crate) fn target_spacing(&self) -> f64 {
         self.target.spacing()
     }
 }
@@ -865,8 +516,8 @@ impl Problem for CloudProblem<'_> {
         self.anchor
     }
 
-    fn linearise(&mut self, transform: &Matrix4<f64>) -> &Rows {
-        self.match_and_fill(transform, Purpose::Solve);
+    fn linearise(&mut self, transform: &Matrix4<f64>, points: StepPoints) -> &Rows {
+        self.match_and_fill(transform, Purpose::Step(points));
         &self.rows
     }
 
@@ -925,14 +576,6 @@ impl Problem for CloudProblem<'_> {
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, Purpose::Evaluate);
         &self.rows
-    }
-
-    fn set_annealing(&mut self, annealing: bool) {
-        self.use_coarse = annealing || self.lead_only;
-    }
-
-    fn setup_seconds(&self) -> (f64, f64) {
-        (self.index_seconds, self.normals_seconds)
     }
 }
 
@@ -1024,8 +667,7 @@ mod tests {
         let (guess, step) = (moved(0.01), moved(0.010_002));
         let (mut fresh_coarse, mut fresh_sample) = (None, None);
         room_problem_rows(12_000, |problem| {
-            problem.set_annealing(true);
-            fresh_coarse = Some(snapshot(problem.linearise(&guess)));
+            fresh_coarse = Some(snapshot(problem.linearise(&guess, StepPoints::Coarse)));
         });
         room_problem_rows(12_000, |problem| {
             fresh_sample = Some(snapshot(problem.evaluate_all(&step)))
@@ -1033,8 +675,10 @@ mod tests {
         let (fresh_coarse, fresh_sample) = (fresh_coarse.unwrap(), fresh_sample.unwrap());
         room_problem_rows(12_000, |problem| {
             problem.evaluate_evidence(&guess);
-            problem.set_annealing(true);
-            assert_eq!(snapshot(problem.linearise(&guess)), fresh_coarse);
+            assert_eq!(
+                snapshot(problem.linearise(&guess, StepPoints::Coarse)),
+                fresh_coarse
+            );
             // Evidence points sit in the coarse subset too (hashes of 1 in 12 and 1 in 3 of
             // the same sample): their queries at this transform were kept.
             let kept = problem
@@ -1050,7 +694,6 @@ mod tests {
                 .filter(|i| problem.coarse.order.contains(i))
                 .count();
             assert!(shared > 500 && kept >= shared * 9 / 10, "{kept} of {shared}");
-            problem.set_annealing(false);
             assert_eq!(snapshot(problem.evaluate_all(&step)), fresh_sample);
             let generation = (problem.history.len() - 1) as u16;
             let requeried = problem

@@ -86,8 +86,10 @@ fn tail_bound(count: f64, total: f64, log_p: f64) -> f64 {
 }
 
 /// The most significant cluster among residual norms given as squares (reordered in place).
-/// Exact: every k-th smallest norm is tried as the radius.
-pub fn most_significant(squared_norms: &mut [f64], background: &Background) -> Cluster {
+/// Exact: every k-th smallest norm is tried as the radius. The reference the tests hold
+/// [`BinnedSignificance`] and the score's properties against.
+#[cfg(test)]
+fn most_significant(squared_norms: &mut [f64], background: &Background) -> Cluster {
     squared_norms.sort_unstable_by(f64::total_cmp);
     let total = squared_norms.len() as f64;
     let mut best = Cluster::default();

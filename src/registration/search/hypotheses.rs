@@ -19,10 +19,9 @@ use nalgebra::{Matrix3, Matrix4, Vector3};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 
-use super::significance::{Background, BinnedSignificance, Cluster};
-use crate::geometry::{
-    Point, length, rotation_part, transform_point, translation_part, vector, weighted_rigid_fit,
-};
+use crate::Point;
+use crate::geometry::{length, rotation_part, transform_point, translation_part, vector, weighted_rigid_fit};
+use crate::registration::significance::{Background, BinnedSignificance, Cluster};
 
 /// Pairs a pose is scored on while searching (a fixed random subset): enough for a cluster of a
 /// few tens of inliers at 10 outliers per inlier.

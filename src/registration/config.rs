@@ -1,0 +1,155 @@
+//! How a registration runs: the metric, where SIE starts, and every setting of
+//! [`RegistrationConfig`].
+
+use super::input::require_normal_neighbours;
+use crate::NonFinite;
+use crate::cost::CostFunction;
+use crate::error::Error;
+use crate::noise::NoiseModel;
+use crate::sie::{SieOptions, WarmStart};
+
+/// Residual used by ICP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    /// r = T·a − b (3 columns).
+    PointToPoint,
+    /// r = n_bᵀ(T·a − b) with the target normal n_b (1 column).
+    PointToPlane,
+}
+
+/// Where SIE starts from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Starts {
+    /// Correspondences: besides the initial guess, the poses of a threshold-free hypothesis
+    /// search (`search::hypotheses`). ICP: the initial guess with the paper's β₀, with a narrow
+    /// β₀, and after a scale-free lead (`search::cloud_starts`). SIE runs from each and the result with
+    /// the most significant inlier cluster is returned. Each start may make up to
+    /// `max_iterations` updates.
+    #[default]
+    Automatic,
+    /// Only the initial guess (the paper's method as published).
+    InitialGuess,
+}
+
+/// How a registration runs. `Default` is SIE, point-to-plane, no parameter to tune.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegistrationConfig {
+    /// The robust cost that weights correspondences (SIE by default).
+    pub cost: CostFunction,
+    /// SIE's estimator settings (used when `cost` is [`CostFunction::Sie`]).
+    pub sie: SieOptions,
+    /// ICP only; correspondence registration always uses point-to-point.
+    pub metric: Metric,
+    /// Where SIE starts (SIE only; baselines start from the initial guess).
+    pub starts: Starts,
+    /// Cap on IRLS updates (each is one match + weight + solve step) of each start
+    /// (`Starts::Automatic` runs several; `RegistrationResult::iterations` counts them all).
+    pub max_iterations: u32,
+    /// Converged when the update moves the source centroid by less than this (input units) …
+    pub translation_tolerance: f64,
+    /// … and rotates by less than this (radians).
+    pub rotation_tolerance: f64,
+    /// Built-in noise normalisation (§4.4); a `NoiseScales` callback passed to the registration
+    /// overrides it.
+    pub noise: NoiseModel,
+    /// β₀ in normalised units; `None` = RMS of the initial residuals (§4.3).
+    pub initial_beta: Option<f64>,
+    /// SIE: start from a previous registration's noise model (`WarmStart::of`), for a
+    /// sequence registered from good guesses. One run from the initial guess with β₀ = 2σ and
+    /// no levels far below σ (none after the first when that one moved the rows by less than
+    /// the model's width); when it ends without the model holding (not converged, no inlier
+    /// peak, σ more than doubled or the inlier fraction halved: the guess was bad), the
+    /// registration runs as without it (`starts`). Ignored when `initial_beta` is set.
+    pub warm_start: Option<WarmStart>,
+    /// β ← shrink·β after each convergence (§4.3: 0.5).
+    pub beta_shrink: f64,
+    /// Annealing ends when β < ratio·σ ("β ≪ σ").
+    pub beta_stop_ratio: f64,
+    /// ICP: use at most this many randomly chosen source points per iteration (0 = all).
+    pub max_correspondences: usize,
+    /// ICP point-to-plane: neighbours for PCA normals when the caller gives none.
+    pub normal_neighbours: usize,
+    /// Worker threads for matching and normals (0 = all cores, 1 = the caller's thread only).
+    pub threads: usize,
+    /// Seed of the correspondence sampling.
+    pub seed: u64,
+    /// Record one `TraceEntry` per iteration.
+    pub record_trace: bool,
+    /// Points (or pairs) with a NaN or infinite coordinate: rejected (the default), or dropped
+    /// (depth images and PCL clouds with `is_dense = false` carry them). Dropped source points
+    /// report probability 0 and no match; a non-finite target normal counts as "no normal".
+    pub non_finite: NonFinite,
+    /// Drop points (or pairs) at exactly (0, 0, 0) the same way: organised clouds from depth
+    /// sensors mark invalid pixels so. They are not measurements, and with both clouds from the
+    /// same sensor point-to-point matches them to each other (at residual 0 at the identity).
+    /// Off by default: 0 0 0 can be a real point.
+    pub skip_origin: bool,
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        RegistrationConfig {
+            cost: CostFunction::Sie,
+            sie: SieOptions::default(),
+            metric: Metric::PointToPlane,
+            starts: Starts::Automatic,
+            max_iterations: 200,
+            translation_tolerance: 1e-6,
+            rotation_tolerance: 1e-6,
+            noise: NoiseModel::Constant,
+            initial_beta: None,
+            warm_start: None,
+            beta_shrink: 0.5,
+            beta_stop_ratio: 0.01,
+            max_correspondences: 0,
+            normal_neighbours: 10,
+            threads: 0,
+            seed: 0x5EED,
+            record_trace: false,
+            non_finite: NonFinite::Reject,
+            skip_origin: false,
+        }
+    }
+}
+
+impl RegistrationConfig {
+    /// Checks every setting; the message names the first bad one.
+    pub fn validate(&self) -> Result<(), Error> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        self.cost.validate().or_else(bad)?;
+        self.sie.validate().or_else(bad)?;
+        if self.max_iterations == 0 {
+            return bad("max_iterations must be >= 1".into());
+        }
+        for (name, v) in [
+            ("translation_tolerance", self.translation_tolerance),
+            ("rotation_tolerance", self.rotation_tolerance),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name} must be finite and >= 0, got {v}"));
+            }
+        }
+        if let Some(b) = self.initial_beta {
+            if !(b.is_finite() && b >= 0.0) {
+                return bad(format!("initial_beta must be finite and >= 0, got {b}"));
+            }
+        }
+        if let Some(warm) = &self.warm_start {
+            warm.validate().or_else(bad)?;
+        }
+        if !(self.beta_shrink > 0.0 && self.beta_shrink < 1.0) {
+            return bad(format!("beta_shrink must be in (0, 1), got {}", self.beta_shrink));
+        }
+        if !(self.beta_stop_ratio > 0.0 && self.beta_stop_ratio.is_finite()) {
+            return bad(format!(
+                "beta_stop_ratio must be finite and > 0, got {}",
+                self.beta_stop_ratio
+            ));
+        }
+        require_normal_neighbours(self.normal_neighbours)?;
+        if self.threads > 1024 {
+            return bad(format!("threads must be <= 1024, got {}", self.threads));
+        }
+        Ok(())
+    }
+}

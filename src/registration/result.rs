@@ -1,0 +1,193 @@
+//! What a registration reports: the transform, why it stopped, the fitted noise model, the
+//! per-point results, the trace, the stage times, the search and the verdict.
+
+use nalgebra::Matrix4;
+
+use crate::sie::HistogramModel;
+
+/// Why the iteration stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// The last update was below both tolerances in the final round (for SIE: after β ≪ σ).
+    Converged,
+    /// `max_iterations` updates were made without converging.
+    IterationLimit,
+    /// The problem has no unique solution: no correspondence with weight > 0, or the weighted
+    /// system is rank deficient (e.g. collinear points, one plane for point-to-plane). The
+    /// transform is the best constrained estimate reached.
+    Degenerate,
+    /// The observer asked to stop; the transform is the one reached so far.
+    Cancelled,
+}
+
+/// Which start the returned transform came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StartKind {
+    /// The caller's initial guess (the identity when none was given) with the paper's β₀.
+    #[default]
+    InitialGuess,
+    /// The initial guess with β₀ far below the RMS of the initial residuals (ICP).
+    NarrowBeta,
+    /// A scale-free (L1) IRLS run from the initial guess, then SIE (ICP).
+    ScaleFreeLead,
+    /// A pose found by the hypothesis search (correspondences).
+    Hypothesis,
+    /// The initial guess with the caller's warm start (`RegistrationConfig::warm_start`): the
+    /// previous fit's noise model, β₀ = 2σ.
+    WarmStart,
+}
+
+/// One IRLS iteration, for plotting convergence.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TraceEntry {
+    /// 1-based update count.
+    pub iteration: u32,
+    /// True while β is being annealed; false in the final round (and for baselines).
+    pub annealing: bool,
+    /// σ of the first histogram (normalised units); the baseline's scale for other costs.
+    pub sigma: f64,
+    /// β of the first histogram at this iteration (normalised units; 0 for baselines).
+    pub beta: f64,
+    /// Penalty k of the first histogram at this iteration (0 for baselines).
+    pub penalty: f64,
+    /// Σ P(I|r) / source points, as `RegistrationResult::inlier_fraction` (unmatched points
+    /// count 0), over the source points this iteration matched (all, or the sample), with the
+    /// weights of this update.
+    pub inlier_fraction: f64,
+    /// Weighted RMS residual of this iteration (input units).
+    pub rmse: f64,
+    /// Size of this update: how far it moved the source centroid, and its rotation angle.
+    pub translation_change: f64,
+    /// Rotation angle of this update (radians).
+    pub rotation_change: f64,
+    /// Correspondences (matched rows) this iteration used.
+    pub correspondences: usize,
+    /// T_target_source after this update (p_target = T · p_source): what a viewer animates.
+    pub transform: Matrix4<f64>,
+}
+
+/// Wall time of one registration's stages, in seconds (what a profile of the call would show,
+/// without a profiler). `total` also covers validation and noise scales.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Building the target's kd-tree, including sorting the target along a space-filling
+    /// curve (ICP only).
+    pub index: f64,
+    /// Estimating target normals (point-to-plane without given normals): choosing the scale up
+    /// front, then each normal when matching first reaches its point (not counted in
+    /// `matching` or `evaluation`).
+    pub normals: f64,
+    /// Nearest-neighbour matching and residual rows, every iteration.
+    pub matching: f64,
+    /// Fitting the cost (SIE: histogram, σ, k, P(I|r)) and computing the IRLS weights.
+    pub weighting: f64,
+    /// The weighted least-squares step.
+    pub solve: f64,
+    /// Matching every source point at the returned transform for the reported results.
+    pub evaluation: f64,
+    /// The whole call, from validation to the returned result.
+    pub total: f64,
+}
+
+/// Everything a registration reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegistrationResult {
+    /// T_target_source: p_target = T · p_source.
+    pub transform: Matrix4<f64>,
+    /// Why the iteration stopped.
+    pub stop_reason: StopReason,
+    /// Whether it stopped because it converged (`stop_reason == StopReason::Converged`);
+    /// whether the pose is supported is `quality.verdict`.
+    pub converged: bool,
+    /// Number of updates made.
+    pub iterations: u32,
+    /// Fitted σ_j per histogram (normalised units; input units with the constant noise model).
+    pub sigma: Vec<f64>,
+    /// Final β_j per histogram (empty for baselines).
+    pub beta: Vec<f64>,
+    /// Final k (the first histogram's).
+    pub penalty: f64,
+    /// Final noise shape p (2 unless estimated).
+    pub noise_shape: f64,
+    /// Σ_i P(I|r_i) / n_source at the returned transform (unmatched points count 0).
+    pub inlier_fraction: f64,
+    /// sqrt(Σ P_i‖r_i‖² / Σ P_i) at the returned transform, input units (‖r‖ is the plane
+    /// distance for point-to-plane).
+    pub rmse: f64,
+    /// Per source point, P(I|r) at the returned transform (0 if unmatched). For baseline costs:
+    /// the IRLS weight divided by the largest weight.
+    pub probabilities: Vec<f64>,
+    /// Per source point, the matched target index (-1 if unmatched).
+    pub correspondences: Vec<i64>,
+    /// Last fitted histograms (SIE only), for the paper's Fig. 1.
+    pub histograms: Vec<HistogramModel>,
+    /// Per-iteration trace when `record_trace` is set.
+    pub trace: Vec<TraceEntry>,
+    /// Wall time of the registration's stages (seconds).
+    pub times: StageTimes,
+    /// Which start decided the result, and what the search found.
+    pub search: SearchReport,
+    /// How far to trust the result.
+    pub quality: Quality,
+}
+
+/// A verdict on a registration from the evidence SIE has (issue: "converged" must mean right).
+/// `converged` only says the iteration settled; this says whether the pose it settled at is
+/// supported by the data.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Verdict {
+    /// Every test passed: a significant inlier cluster, a pose the inliers constrain in every
+    /// direction, no other start ending elsewhere nearly as significant, and (ICP) inlier
+    /// residuals no wider than the points' spacing.
+    Good,
+    /// The pose is supported but some evidence speaks against it (see `Quality`): check it.
+    #[default]
+    Doubtful,
+    /// No inlier cluster stands out from chance at the fitted scale: the data do not support
+    /// this pose.
+    Unsupported,
+}
+
+/// The evidence behind the verdict.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Quality {
+    /// Good, doubtful or unsupported, from the evidence below.
+    pub verdict: Verdict,
+    /// Significance of the inlier cluster at the fitted scale (nats, `sie::significance`).
+    pub significance: f64,
+    /// How well the weighted inliers constrain the pose at the last update, 0–1
+    /// (`geometry::Solve::conditioning`).
+    pub conditioning: f64,
+    /// Fitted σ over the typical distance between neighbouring target points (ICP; 0 for
+    /// correspondences, which have no spacing).
+    pub sigma_to_spacing: f64,
+    /// Significance of the result over that of the best start that ended elsewhere (∞ when
+    /// none did).
+    pub margin: f64,
+}
+
+/// Where the returned transform came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SearchReport {
+    /// Which start the transform came from.
+    pub start: StartKind,
+    /// Minimal samples drawn by the hypothesis search (0 when none ran).
+    pub hypotheses: u32,
+    /// Starts SIE was run from (1 without a search).
+    pub starts_run: u32,
+    /// Significance of the inlier cluster at the returned transform, at the scale of its
+    /// fitted σ (`sie::significance::at_scale`; nats, 0 when nothing stands out from chance).
+    /// 0 when only one start ran.
+    pub significance: f64,
+    /// Starts whose result is the returned pose (within 3 standard errors), itself included.
+    pub agreeing_starts: u32,
+    /// The largest significance among starts that ended elsewhere (0: none did).
+    pub runner_up_significance: f64,
+}
+
+impl RegistrationResult {
+    /// σ of the result: the RMS over its histograms.
+    pub(crate) fn sigma_rms(&self) -> f64 {
+        (self.sigma.iter().map(|s| s * s).sum::<f64>() / self.sigma.len().max(1) as f64).sqrt()
+    }
+}

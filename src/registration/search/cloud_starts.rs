@@ -1,0 +1,176 @@
+//! Where SIE starts on two clouds, and which start's result is kept.
+//!
+//! §4.3 leaves β₀ open ("prior knowledge about the uncertainty of T or … the standard
+//! deviation of the initial set of residuals"). The RMS of the initial residuals (the paper's
+//! choice) is right when the initial guess is poor, but on partially overlapping scans it also
+//! counts the points with no counterpart: the first levels then weigh almost everything and
+//! follow the all-points optimum away from a good initial guess. A β₀ far below the RMS keeps a
+//! good guess but cannot travel far from a poor one; and when the initial residuals have no
+//! peak at all, a scale-free IRLS (L1) finds the basin better than either. None of the three
+//! wins everywhere, so ICP runs all of them from the initial guess and keeps the result whose
+//! inlier cluster is most significant at its own fitted scale (`significance::at_scale`).
+//!
+//! Measured on the real-scan table's 132 registrations (docs/results.md, "Real scans"): the
+//! paper's β₀ alone succeeds on 50 of the 92 Stanford runs, β₀ = RMS/256 alone on 68, both with
+//! the selection on 69–70; the L1 lead turns the two Kinect frame pairs that fail from the
+//! identity with quadratic noise scaling into successes.
+
+use nalgebra::Matrix4;
+
+use super::choice::BestOfStarts;
+use crate::registration::hooks::Observer;
+use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending};
+use crate::registration::problem::{CloudProblem, Problem, moved_apart};
+use crate::registration::result::{RegistrationResult, StartKind, StopReason};
+use crate::registration::verdict::{Evidence, mean_squared_norm};
+
+/// Before SIE: nothing, or a scale-free IRLS run whose result SIE starts from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Lead {
+    /// SIE from the initial guess itself.
+    None,
+    /// IRLS with the L1 weight 1/max(‖r‖, δ) (no scale to tune) until its updates are small
+    /// against the initial residuals.
+    ScaleFree,
+}
+
+/// One start of SIE on two clouds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct CloudStart {
+    /// What runs before SIE.
+    lead: Lead,
+    /// β₀ as a fraction of the RMS residual at SIE's start (1: the paper's β₀).
+    beta_fraction: f64,
+}
+
+/// The starts ICP runs from one initial guess, in order: the paper's, a narrow one, and a
+/// scale-free lead followed by the paper's.
+const CLOUD_STARTS: [CloudStart; 3] = [
+    CloudStart {
+        lead: Lead::None,
+        beta_fraction: 1.0,
+    },
+    CloudStart {
+        lead: Lead::None,
+        beta_fraction: 1.0 / 256.0,
+    },
+    CloudStart {
+        lead: Lead::ScaleFree,
+        beta_fraction: 1.0,
+    },
+];
+
+/// The scale-free lead stops when an update moves the source centroid by less than this
+/// fraction of the initial RMS residual and rotates it by less than LEAD_ROTATION_TOLERANCE:
+/// it only has to reach the basin, SIE does the rest.
+const LEAD_TRANSLATION_FRACTION: f64 = 1e-3;
+/// See [`LEAD_TRANSLATION_FRACTION`].
+const LEAD_ROTATION_TOLERANCE: f64 = 1e-4;
+
+/// A run on a cloud problem with its stage times completed (the index and the normals that
+/// matching reached, moved out of the stages that reached them).
+pub(crate) fn run_on_clouds(
+    problem: &mut CloudProblem<'_>,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    plan: &RunPlan,
+    observer: Option<&mut Observer<'_>>,
+) -> (RegistrationResult, PendingPerPoint) {
+    let before = problem.setup_time();
+    let (mut result, pending) = run_pending(problem, init, first_iteration, plan, observer);
+    problem.setup_time().complete(&before, &mut result.times);
+    (result, pending)
+}
+
+/// ICP from the initial guess by each of [`CLOUD_STARTS`], each with its own plan; the most
+/// significant result at its own scale wins. The background of the significance is the spread
+/// of the residuals at the initial guess (over the evidence subset), widened by
+/// `Evidence::around`. `plan` is the caller's run (SIE from the paper's β₀, no warm start).
+pub(crate) fn register_from_starts(
+    problem: &mut CloudProblem<'_>,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    plan: &RunPlan,
+    mut observer: Option<&mut Observer<'_>>,
+) -> RegistrationResult {
+    let cols = problem.cols();
+    let evidence = Evidence::of_clouds(problem, &init);
+    // The RMS of every initial residual scales the later starts (the narrow β₀, the lead's
+    // tolerance); it needs a pass over every source point, made only when a later start runs.
+    let mut initial_rms = None;
+    let mut rms = |problem: &mut CloudProblem<'_>| {
+        *initial_rms.get_or_insert_with(|| {
+            (mean_squared_norm(problem.evaluate_all(&init), cols) / cols as f64).sqrt()
+        })
+    };
+    let starts = if evidence.exact_start {
+        &CLOUD_STARTS[..1]
+    } else {
+        &CLOUD_STARTS[..]
+    };
+    let mut best = BestOfStarts::new(evidence);
+    best.next_iteration = first_iteration;
+    for start in starts {
+        best.park();
+        let (from, kind) = match start.lead {
+            Lead::None => (init, StartKind::InitialGuess),
+            Lead::ScaleFree => {
+                let lead =
+                    plan.scale_free_lead(LEAD_TRANSLATION_FRACTION * rms(problem), LEAD_ROTATION_TOLERANCE);
+                let (mut led, pending) =
+                    run_on_clouds(problem, init, best.next_iteration, &lead, observer.as_deref_mut());
+                if led.stop_reason == StopReason::Cancelled {
+                    best.offer(problem, led, Some(pending), StartKind::ScaleFreeLead);
+                    break;
+                }
+                best.next_iteration = led.iterations + 1;
+                best.trace.append(&mut led.trace);
+                (led.transform, StartKind::ScaleFreeLead)
+            }
+        };
+        let (kind, start_plan) = if start.beta_fraction < 1.0 {
+            let narrow = plan.starting_at_beta(start.beta_fraction * rms(problem));
+            (StartKind::NarrowBeta, narrow)
+        } else {
+            (kind, plan.clone())
+        };
+        let (result, pending) = run_on_clouds(
+            problem,
+            from,
+            best.next_iteration,
+            &start_plan,
+            observer.as_deref_mut(),
+        );
+        // Only a converged run can show the guess was right (one stopped at the cap while β was
+        // still wide has not looked closely yet).
+        let stayed = kind == StartKind::InitialGuess
+            && result.stop_reason == StopReason::Converged
+            && stayed_near(problem, &init, &result);
+        // A guess near the right pose has residuals that are mostly inliers, not the background
+        // a wrong pose would show (judged against them alone, the right pose of every frame of a
+        // 100-frame odometry run from constant-velocity guesses was UNSUPPORTED). The first
+        // start's result shifted by 10σ shows one; the wider of the two backgrounds judges
+        // every start.
+        if best.starts_run == 0 {
+            // Leaves the rows at the result: the final evaluation's again, bit for bit.
+            best.evidence.widen_around(problem, &result);
+        }
+        if !best.offer(problem, result, Some(pending), kind) || stayed {
+            break;
+        }
+    }
+    best.finish(problem)
+}
+
+/// The initial guess was already right to within the noise: the paper's start (the widest β)
+/// moved the source points by at most `STAYED_SIGMAS`·σ RMS. Narrower starts from the same
+/// guess cannot be pulled elsewhere by data that did not pull the widest one (a sequence's
+/// constant-velocity guess is the common case: one start, the paper's cost).
+fn stayed_near(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> bool {
+    let typical_scale = problem.rows().scale.median();
+    let moved = moved_apart(problem.probe_points(), init, &result.transform) / typical_scale;
+    moved <= STAYED_SIGMAS * result.sigma_rms()
+}
+
+/// See [`stayed_near`].
+const STAYED_SIGMAS: f64 = 3.0;

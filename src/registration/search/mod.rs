@@ -1,0 +1,17 @@
+//! Where SIE starts, and which start's result is kept. SIE's IRLS is local; its robustness to
+//! a poor initial guess comes from starting it more than once and keeping the result whose
+//! inlier cluster is most significant at its own scale (`registration::significance`).
+//!
+//! * `cloud_starts`: ICP's starts from one guess (the paper's β₀, a narrow β₀, a scale-free lead).
+//! * `hypotheses`: a threshold-free hypothesis search over minimal samples of given pairs.
+//! * `pair_starts`: correspondence registration from the guess, or from that search's best
+//!   poses.
+//! * `choice`: the choice between the starts' results, and how the others relate to it.
+
+mod choice;
+mod cloud_starts;
+mod hypotheses;
+mod pair_starts;
+
+pub(crate) use cloud_starts::{register_from_starts, run_on_clouds};
+pub(crate) use pair_starts::{register_from_guess, register_from_hypotheses};
