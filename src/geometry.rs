@@ -3,7 +3,7 @@
 //! point-to-plane.
 use nalgebra::{Matrix3, Matrix4, Matrix6, Rotation3, SymmetricEigen, Vector3, Vector6};
 
-use crate::Point;
+use crate::point::Point;
 
 /// How far RᵀR of a given rigid transform may be from I (max |RᵀR − I|): the rotation block is
 /// then made exactly orthonormal. Published ground truths are orthonormal only to the digits
@@ -32,7 +32,7 @@ pub fn transform_point(t: &Matrix4<f64>, p: &Point) -> Point {
     ]
 }
 
-/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind [`NonFinite`](crate::NonFinite).
+/// Whether every coordinate is finite (neither NaN nor ±∞): the one test behind [`NonFinite`](crate::point::NonFinite).
 #[inline]
 pub fn is_finite(p: &Point) -> bool {
     p.iter().all(|v| v.is_finite())

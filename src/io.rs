@@ -15,7 +15,7 @@ use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
 use crate::geometry::{first_non_finite, is_finite};
-use crate::{NonFinite, Point};
+use crate::point::{NonFinite, Point};
 
 /// A cloud read from a file.
 #[derive(Clone, Debug, PartialEq)]

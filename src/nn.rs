@@ -16,7 +16,7 @@ use kiddo::stem_strategies::Eytzinger;
 const BUCKET: usize = 32;
 type Tree = KdTree<f64, u32, Eytzinger, FlatVec<f64, u32, 3, BUCKET>, 3, BUCKET>;
 
-use crate::Point;
+use crate::point::Point;
 
 /// Clouds whose largest coordinate magnitude lies in [2^-64, 2^64] are indexed as given; others
 /// are scaled by a power of two (exact) to bring it to [0.5, 1). Squared distances then never

@@ -1,9 +1,9 @@
 //! Surface normals by k-nearest-neighbour PCA, for point-to-plane ICP when the target cloud
 //! comes without normals.
-use crate::Point;
 use crate::geometry::{cross, dot, splitmix64};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
+use crate::point::Point;
 
 /// A neighbourhood counts as a line (or a single point) when its middle covariance eigenvalue
 /// is below about this fraction of the largest: no plane, hence no normal. Exactly collinear

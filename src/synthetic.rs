@@ -12,7 +12,7 @@ use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-use crate::Point;
+use crate::point::Point;
 
 /// Point pairs for correspondence registration: `source[i]` ↔ `target[i]`.
 #[derive(Clone, Debug, PartialEq)]

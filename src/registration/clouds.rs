@@ -18,12 +18,12 @@ use super::search::{register_from_starts, run_on_clouds};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::verdict::{Evidence, judged_alone};
 use super::warm::{WarmRun, run_warm};
-use crate::Point;
 use crate::cost::CostFunction;
 use crate::error::Error;
 use crate::memory;
 use crate::noise::NoiseModel;
 use crate::parallel::Workers;
+use crate::point::Point;
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
 /// `target_normals` (one per target point; zero vectors mark points without a normal) are used

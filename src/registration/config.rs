@@ -1,11 +1,10 @@
 //! How a registration runs: the metric, where SIE starts, and every setting of
 //! [`RegistrationConfig`].
 
-use super::input::require_normal_neighbours;
-use crate::NonFinite;
 use crate::cost::CostFunction;
 use crate::error::Error;
 use crate::noise::NoiseModel;
+use crate::point::NonFinite;
 use crate::sie::{SieOptions, WarmStart};
 
 /// Residual used by ICP.
@@ -151,5 +150,22 @@ impl RegistrationConfig {
             return bad(format!("threads must be <= 1024, got {}", self.threads));
         }
         Ok(())
+    }
+}
+
+/// The neighbour counts PCA normals may use: three points span a plane, and a thousand is
+/// far beyond any scan's need (each normal costs a k-NN query).
+const NORMAL_NEIGHBOURS: std::ops::RangeInclusive<usize> = 3..=1000;
+
+/// `normal_neighbours` (of a config or a prepared target) is in 3..=1000.
+pub(crate) fn require_normal_neighbours(neighbours: usize) -> Result<(), Error> {
+    if NORMAL_NEIGHBOURS.contains(&neighbours) {
+        Ok(())
+    } else {
+        Err(Error::InvalidArgument(format!(
+            "normal_neighbours must be in {}..={}, got {neighbours}",
+            NORMAL_NEIGHBOURS.start(),
+            NORMAL_NEIGHBOURS.end()
+        )))
     }
 }

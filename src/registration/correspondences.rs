@@ -15,9 +15,9 @@ use super::problem::CorrespondenceProblem;
 use super::result::RegistrationResult;
 use super::search::{register_from_guess, register_from_hypotheses};
 use super::units::Units;
-use crate::Point;
 use crate::error::Error;
 use crate::memory;
+use crate::point::Point;
 
 /// Registers matched pairs: `source[i]` corresponds to `target[i]` (point-to-point).
 ///

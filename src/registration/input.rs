@@ -3,11 +3,12 @@
 
 use nalgebra::Matrix4;
 
-use super::{RegistrationConfig, RegistrationResult};
+use super::config::RegistrationConfig;
+use super::result::RegistrationResult;
 use crate::error::Error;
 use crate::geometry::{first_non_finite, is_finite};
 use crate::noise::{CloudRole, NoiseModel, NoiseScales, cloud_sigmas};
-use crate::{NonFinite, Point};
+use crate::point::{NonFinite, Point};
 
 /// Which points the caller asked to drop before registering (`non_finite`, `skip_origin`).
 #[derive(Clone, Copy, Debug)]
@@ -93,23 +94,6 @@ pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> 
             "{what}[{i}] = {:?} is not finite",
             points[i]
         ))),
-    }
-}
-
-/// The neighbour counts PCA normals may use: three points span a plane, and a thousand is
-/// far beyond any scan's need (each normal costs a k-NN query).
-const NORMAL_NEIGHBOURS: std::ops::RangeInclusive<usize> = 3..=1000;
-
-/// `normal_neighbours` (of a config or a prepared target) is in 3..=1000.
-pub(crate) fn require_normal_neighbours(neighbours: usize) -> Result<(), Error> {
-    if NORMAL_NEIGHBOURS.contains(&neighbours) {
-        Ok(())
-    } else {
-        Err(Error::InvalidArgument(format!(
-            "normal_neighbours must be in {}..={}, got {neighbours}",
-            NORMAL_NEIGHBOURS.start(),
-            NORMAL_NEIGHBOURS.end()
-        )))
     }
 }
 

@@ -10,7 +10,8 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
-use super::input::{Skip, require_finite, require_normal_neighbours, require_points, require_unit_normals};
+use super::config::{RegistrationConfig, require_normal_neighbours};
+use super::input::{Skip, require_finite, require_points, require_unit_normals};
 use super::units::Units;
 use crate::error::Error;
 use crate::geometry::is_finite;
@@ -18,7 +19,7 @@ use crate::median::median;
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
-use crate::{NonFinite, Point};
+use crate::point::{NonFinite, Point};
 
 /// Indices are u32 with u32::MAX reserved for "no match".
 pub(crate) const NO_MATCH: u32 = u32::MAX;
@@ -39,7 +40,7 @@ pub struct PrepareOptions {
 impl Default for PrepareOptions {
     fn default() -> Self {
         PrepareOptions {
-            normal_neighbours: super::RegistrationConfig::default().normal_neighbours,
+            normal_neighbours: RegistrationConfig::default().normal_neighbours,
             non_finite: NonFinite::Reject,
             skip_origin: false,
         }
@@ -48,7 +49,7 @@ impl Default for PrepareOptions {
 
 impl PrepareOptions {
     /// The options `register_clouds` prepares its target with under `config`.
-    pub fn from_config(config: &super::RegistrationConfig) -> Self {
+    pub fn from_config(config: &RegistrationConfig) -> Self {
         PrepareOptions {
             normal_neighbours: config.normal_neighbours,
             non_finite: config.non_finite,

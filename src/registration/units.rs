@@ -9,8 +9,8 @@ use nalgebra::{Matrix4, Vector3};
 
 use super::config::RegistrationConfig;
 use super::result::{RegistrationResult, TraceEntry};
-use crate::Point;
 use crate::geometry::{from_parts, rotation_part, translation_part};
+use crate::point::Point;
 use crate::sie::WarmStart;
 
 /// Coordinates, and noise scales, whose magnitudes lie in [1/SAFE, SAFE] are used as given:

@@ -1,7 +1,9 @@
 //! SIE on its own (§4): the inlier probability of every row of a residual matrix, for callers
 //! that do their own estimation (the C ABI's `sie_estimate_inliers`).
 
-use super::{ARITHMETIC_LIMIT, HistogramModel, SieEstimator, SieOptions};
+use super::estimator::SieEstimator;
+use super::histogram::{ARITHMETIC_LIMIT, HistogramModel};
+use super::options::SieOptions;
 use crate::error::Error;
 use crate::median::median;
 use crate::memory;

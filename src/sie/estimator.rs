@@ -2,9 +2,9 @@
 //! penalty k (§4.5), and the inlier probability of every row (eqs. InlierRatio and
 //! InlierRatioReg, combined over columns with γ, §4.2).
 
-use super::histogram::Residuals;
+use super::histogram::{HistogramModel, Residuals, root_mean_square};
+use super::options::{GammaRule, HistogramMode, NoiseShape, SieOptions};
 use super::shape::GeneralisedGaussian;
-use super::{GammaRule, HistogramMode, HistogramModel, NoiseShape, SieOptions};
 use crate::median::median;
 
 /// SIE state carried between iterations (§4.5: range, bins and k are carried over).
@@ -277,19 +277,6 @@ fn active_columns(residuals: &[f64], cols: usize) -> Vec<bool> {
     rms.iter()
         .map(|&r| largest == 0.0 || r > SILENT_COLUMN * largest)
         .collect()
-}
-
-/// Residuals larger than this (normalised units) are outliers whatever the model: their squares
-/// would leave f64's range. They are left out of every statistic (one garbage pair at 1e160
-/// among good ones made the RMS start infinite and every probability 0).
-pub(crate) const ARITHMETIC_LIMIT: f64 = 1e100;
-
-/// sqrt(mean(x²)) over the values within ±ARITHMETIC_LIMIT; 0 for none.
-pub(crate) fn root_mean_square(values: impl Iterator<Item = f64>) -> f64 {
-    let (sum, n) = values
-        .filter(|v| v.abs() <= ARITHMETIC_LIMIT)
-        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
-    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 
 #[cfg(test)]

@@ -1,8 +1,8 @@
 //! One residual histogram H_j and its fitted inlier model G_j (§4.1, §4.5), plus the per-bin
 //! inlier probability table of eq. (InlierRatioReg).
 
+use super::options::{NoiseShape, SieOptions};
 use super::shape::{GeneralisedGaussian, minimise_1d, shape_cost, sigma_cost};
-use super::{NoiseShape, SieOptions};
 
 /// At most this many range refits per fit (fixed point of "range where G > ε").
 const MAX_RANGE_REFITS: usize = 5;
@@ -185,7 +185,7 @@ impl HistogramModel {
             // The last data had no spread; this data may (e.g. round-off after a perfect fit).
             // Restart from the all-inlier ML estimate (§4.5) instead of a zero-width model.
             let mu = self.inlier.mu;
-            self.inlier.sigma = super::root_mean_square(samples().map(|x| x - mu));
+            self.inlier.sigma = root_mean_square(samples().map(|x| x - mu));
         }
         for refit in 0..=MAX_RANGE_REFITS {
             let (lo, hi) = self.interval(residuals, options);
@@ -460,6 +460,19 @@ fn smooth(input: &[f64], output: &mut Vec<f64>, std_bins: f64, residuals: Residu
         }
         *out = if mass > 0.0 { sum / mass } else { 0.0 };
     }
+}
+
+/// Residuals larger than this (normalised units) are outliers whatever the model: their squares
+/// would leave f64's range. They are left out of every statistic (one garbage pair at 1e160
+/// among good ones made the RMS start infinite and every probability 0).
+pub(crate) const ARITHMETIC_LIMIT: f64 = 1e100;
+
+/// sqrt(mean(x²)) over the values within ±ARITHMETIC_LIMIT; 0 for none.
+pub(crate) fn root_mean_square(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, n) = values
+        .filter(|v| v.abs() <= ARITHMETIC_LIMIT)
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    if n == 0 { 0.0 } else { (sum / n as f64).sqrt() }
 }
 
 #[cfg(test)]

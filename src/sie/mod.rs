@@ -27,7 +27,6 @@ pub(crate) mod shape;
 
 pub use estimate::{InlierEstimate, MIN_ESTIMATE_ROWS, estimate_inliers};
 pub use estimator::SieEstimator;
-pub(crate) use estimator::{ARITHMETIC_LIMIT, root_mean_square};
 pub use histogram::{HistogramModel, ModelWidth};
 pub use options::{GammaRule, HistogramMode, NoiseShape, SieOptions};
 pub use schedule::WarmStart;

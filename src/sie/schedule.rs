@@ -4,7 +4,8 @@
 //! The registration driver owns the loop (match, weigh, solve, stop); this type decides how
 //! each iteration's correspondences are weighed and when the model may be called converged.
 
-use super::{SieEstimator, SieOptions};
+use super::estimator::SieEstimator;
+use super::options::SieOptions;
 
 /// A β level has converged when one update moves the correspondences by less than this
 /// fraction of the current model width σ+β (normalised RMS displacement).

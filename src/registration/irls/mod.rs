@@ -10,9 +10,10 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 
+use super::hooks::Observer;
 use super::problem::{Problem, RowScales, Rows, StepPoints};
-use super::{
-    Observer, Quality, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
+use super::result::{
+    Quality, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
 };
 use crate::geometry::transform_change;
 use crate::sie::schedule::{Convergence, PrecisionStop};

@@ -5,8 +5,8 @@ use nalgebra::Matrix4;
 
 use super::normalised;
 use super::weighting::Weighting;
-use crate::registration::RegistrationResult;
 use crate::registration::problem::Problem;
+use crate::registration::result::RegistrationResult;
 
 /// A run's final per-row probabilities, not yet spread over the source points: a result
 /// that is discarded (a start that does not win, a lead) never allocates its 16 bytes a

@@ -2,8 +2,8 @@
 //! which source points its updates match, and when it stops. Every start of a registration
 //! builds its plan from the caller's config; nothing else of the config reaches the loop.
 
-use super::super::{RegistrationConfig, Starts};
 use crate::cost::CostFunction;
+use crate::registration::config::{RegistrationConfig, Starts};
 use crate::sie::SieOptions;
 use crate::sie::schedule::{BetaSchedule, BetaStart};
 

@@ -10,14 +10,15 @@ use super::matches::{Margin, Match, NEVER_QUERIED, Pass};
 use super::{
     Problem, RowScales, Rows, StepPoints, noise_scale, probe_points_of, rms_displacement, typical_magnitude,
 };
-use crate::Point;
 use crate::geometry::{
     Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit_by,
 };
 use crate::median::median;
 use crate::parallel::Workers;
+use crate::point::Point;
+use crate::registration::config::{Metric, RegistrationConfig};
+use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
-use crate::registration::{Metric, RegistrationConfig, StageTimes};
 
 /// While β is annealed the fit needs the basin, not the last digit: at most this many source
 /// points are matched then (σ/√5000 is far below any β level, and the histogram still has
@@ -604,7 +605,7 @@ mod tests {
     fn room_problem_rows(points: usize, check: impl FnOnce(&mut CloudProblem<'_>)) {
         let scene = crate::synthetic::room_scene(points, 0.01, 5);
         let config = RegistrationConfig::default();
-        let options = crate::PrepareOptions::from_config(&config);
+        let options = crate::registration::target::PrepareOptions::from_config(&config);
         let target = PreparedTarget::new(&scene.target, None, &options).unwrap();
         let workers = Workers::new(1).unwrap();
         let mut problem =

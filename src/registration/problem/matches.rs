@@ -2,7 +2,7 @@
 //! how far the point may move before that answer can change (an exact skip test), and the
 //! passes (subsets of the source points matched together) that hold them.
 
-use crate::Point;
+use crate::point::Point;
 use crate::registration::target::NO_MATCH;
 
 /// A nearest-neighbour match of one source point: the transformed source point and what the

@@ -9,10 +9,10 @@ mod pairs;
 
 use nalgebra::Matrix4;
 
-use crate::Point;
 use crate::geometry::{Solve, transform_point};
 use crate::median::median;
 use crate::noise::combine;
+use crate::point::Point;
 pub(crate) use cloud::CloudProblem;
 pub(crate) use pairs::CorrespondenceProblem;
 

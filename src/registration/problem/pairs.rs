@@ -6,8 +6,8 @@ use nalgebra::Matrix4;
 use super::{
     Problem, RowScales, Rows, StepPoints, noise_scale, probe_points_of, rms_displacement, typical_magnitude,
 };
-use crate::Point;
 use crate::geometry::{Solve, transform_point, weighted_rigid_fit};
+use crate::point::Point;
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
 pub(crate) struct CorrespondenceProblem<'a> {

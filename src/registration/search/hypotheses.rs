@@ -19,8 +19,8 @@ use nalgebra::{Matrix3, Matrix4, Vector3};
 use rand::rngs::Xoshiro256PlusPlus;
 use rand::{RngExt, SeedableRng};
 
-use crate::Point;
 use crate::geometry::{length, rotation_part, transform_point, translation_part, vector, weighted_rigid_fit};
+use crate::point::Point;
 use crate::registration::significance::{Background, BinnedSignificance, Cluster};
 
 /// Pairs a pose is scored on while searching (a fixed random subset): enough for a cluster of a

@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::choice::BestOfStarts;
 use super::hypotheses::{self, Pairs};
-use crate::Point;
+use crate::point::Point;
 use crate::registration::hooks::Observer;
 use crate::registration::irls::{RunPlan, run};
 use crate::registration::problem::{CorrespondenceProblem, Problem, Rows};
