@@ -13,7 +13,7 @@ use sie::geometry::{transform_point, weighted_rigid_fit};
 use sie::synthetic::Correspondences;
 use sie::{Point, SieEstimator, SieOptions};
 
-/// Mirrors the library driver's constants (src/registration/driver.rs).
+/// Mirrors the library driver's constants (src/sie/schedule.rs and `RegistrationConfig::default`).
 const LEVEL_TOLERANCE: f64 = 0.01;
 const MAX_LEVEL_ITERATIONS: u32 = 5;
 const BETA_SHRINK: f64 = 0.5;

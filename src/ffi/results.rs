@@ -66,7 +66,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         start: start as u32,
         significance: quality.significance,
         conditioning: quality.conditioning,
-        // Outputs are finite (issue 11): a zero spacing is reported as the largest double, and
+        // Every output is finite: a zero spacing is reported as the largest double, and
         // an unbounded margin (no start ended elsewhere) as 0.
         sigma_to_spacing: if quality.sigma_to_spacing == f64::INFINITY {
             f64::MAX

@@ -131,9 +131,8 @@ pub struct RegistrationResult {
     pub quality: Quality,
 }
 
-/// A verdict on a registration from the evidence SIE has (issue: "converged" must mean right).
-/// `converged` only says the iteration settled; this says whether the pose it settled at is
-/// supported by the data.
+/// A verdict on a registration from the evidence SIE has. `converged` only says the iteration
+/// settled; this says whether the pose it settled at is supported by the data.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Verdict {
     /// Every test passed: a significant inlier cluster, a pose the inliers constrain in every
@@ -153,7 +152,7 @@ pub enum Verdict {
 pub struct Quality {
     /// Good, doubtful or unsupported, from the evidence below.
     pub verdict: Verdict,
-    /// Significance of the inlier cluster at the fitted scale (nats, `sie::significance`).
+    /// Significance of the inlier cluster at the fitted scale (nats; the scale-free score of `registration::significance`).
     pub significance: f64,
     /// How well the weighted inliers constrain the pose at the last update, 0–1
     /// (`geometry::Solve::conditioning`).
@@ -176,7 +175,7 @@ pub struct SearchReport {
     /// Starts SIE was run from (1 without a search).
     pub starts_run: u32,
     /// Significance of the inlier cluster at the returned transform, at the scale of its
-    /// fitted σ (`sie::significance::at_scale`; nats, 0 when nothing stands out from chance).
+    /// fitted σ (`registration::significance::at_scale`; nats, 0 when nothing stands out from chance).
     /// 0 when only one start ran.
     pub significance: f64,
     /// Starts whose result is the returned pose (within 3 standard errors), itself included.

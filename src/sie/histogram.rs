@@ -215,12 +215,9 @@ impl HistogramModel {
     /// A wider range asked for by a histogram that already holds every sample and is at the bin
     /// floor: nothing lies beyond the range, so the wider σ comes from the smoothing kernel,
     /// which is capped at a sixth of the range and so grows with it. Refitting would widen σ
-    /// again by the same factor (about 1.7 a refit for p = 2 on a dozen samples; after the
-    /// refits σ was 300–1 100 times the largest residual for p = 2 and up to 2.6·10⁷
-    /// times for p = 1), so the range stays. Histograms with samples beyond the range, or more samples
-    /// than the floor's bins need, never get here: the paper's grid, the families beyond it and
-    /// the benchmark room and trajectory end bit for bit as before; of the 136 real-scan runs,
-    /// 4 failed Kinect runs changed (failed before and after, same verdicts; 2026-12-01).
+    /// again by the same factor (about 1.7 a refit for p = 2 on a dozen samples, so σ ends
+    /// orders of magnitude past the largest residual), so the range stays. Histograms with
+    /// samples beyond the range, or more samples than the floor's bins need, never get here.
     fn widening_itself(&self, options: &SieOptions, width: f64, new_width: f64) -> bool {
         new_width > width
             && self.samples_in_range == self.samples_total

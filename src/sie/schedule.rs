@@ -105,8 +105,8 @@ const WARM_FINAL_RATIO: f64 = 0.5;
 /// further off (the Kinect frames: 7–37σ) keeps every level.
 const WARM_HELD_WIDTHS: f64 = 1.0;
 /// Such a first level ends once an update moves the rows by at most this fraction of σ+β
-/// (LEVEL_TOLERANCE is 0.01): room odometry at 10 k, 7.5 → 6.6 updates a frame and 7 % more
-/// frames/s (8 % onto the map), drift 0.588 → 0.587 mm (2026-12-01).
+/// (LEVEL_TOLERANCE is 0.01): it only seeds the final round, which refines to the caller's
+/// tolerance anyway (docs/performance.md, item 15, has what it saves).
 const WARM_HELD_TOLERANCE: f64 = 0.1;
 
 /// How β starts and shrinks (§4.3).

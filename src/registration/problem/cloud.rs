@@ -470,9 +470,9 @@ impl CloudProblem<'_> {
 
     /// Rows of the evidence subset at `transform`: about EVIDENCE_POINTS source points,
     /// hash-chosen (the sample when it is no larger). The spreads a verdict compares against
-    /// are means over residuals and enter the significance through a logarithm. Matching every
-    /// source point for them took 46 % of the sequence benchmark's time at 10 k points (perf),
-    /// 5 000 of them still a quarter. Leaves the other passes' cached queries alone.
+    /// are means over residuals and enter the significance through a logarithm, so a subset
+    /// gives them, at a fraction of the matching a pass over every point would cost. Leaves
+    /// the other passes' cached queries alone.
     pub(crate) fn evaluate_evidence(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, Purpose::Evidence);
         &self.rows

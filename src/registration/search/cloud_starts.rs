@@ -9,11 +9,8 @@
 //! peak at all, a scale-free IRLS (L1) finds the basin better than either. None of the three
 //! wins everywhere, so ICP runs all of them from the initial guess and keeps the result whose
 //! inlier cluster is most significant at its own fitted scale (`significance::at_scale`).
-//!
-//! Measured on the real-scan table's 132 registrations (docs/results.md, "Real scans"): the
-//! paper's β₀ alone succeeds on 50 of the 92 Stanford runs, β₀ = RMS/256 alone on 68, both with
-//! the selection on 69–70; the L1 lead turns the two Kinect frame pairs that fail from the
-//! identity with quadratic noise scaling into successes.
+//! docs/performance.md ("Design measurements behind the code") has what each start wins on the
+//! real scans.
 
 use nalgebra::Matrix4;
 
