@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 use sie::geometry::{NOTABLE_CORRECTION, Rigid, make_rigid, rotation_part, transform_point, vector};
-use sie::io::{CloudFile, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz};
+use sie::io::{CloudFile, CloudFormat, PcdEncoding, read_cloud_with, read_transform, write_cloud};
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, NonFinite, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, Verdict, register_clouds,
@@ -23,31 +23,6 @@ use super::report::{
     pose_error, quality_report, search_row, significant, summary, transform_rows,
 };
 use super::{CliError, exit};
-
-/// Formats `--aligned` can write.
-#[derive(Clone, Copy)]
-enum CloudFormat {
-    Pcd,
-    Xyz,
-}
-
-impl CloudFormat {
-    fn of(path: &Path) -> Result<CloudFormat, CliError> {
-        let extension = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
-        match extension.as_str() {
-            "pcd" => Ok(CloudFormat::Pcd),
-            "xyz" | "txt" => Ok(CloudFormat::Xyz),
-            _ => Err(CliError::new(format!(
-                "{}: --aligned writes .pcd, .xyz or .txt, not {extension:?}",
-                path.display()
-            ))),
-        }
-    }
-}
 
 pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let config = args.config()?;
@@ -265,8 +240,15 @@ fn check_outputs(args: &RegisterArgs, config: &RegistrationConfig) -> Result<(),
             )));
         }
     }
-    if let Some(path) = &args.aligned {
-        CloudFormat::of(path)?;
+    if let Some(path) = args.aligned.as_deref() {
+        if !CloudFormat::from_path(path).is_some_and(CloudFormat::is_writable) {
+            let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+            return Err(CliError::new(format!(
+                "{}: --aligned writes .pcd, .xyz or .txt, not {:?}",
+                path.display(),
+                extension.to_ascii_lowercase()
+            )));
+        }
     }
     for path in [&args.output, &args.aligned, &args.plot].into_iter().flatten() {
         let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
@@ -407,20 +389,15 @@ fn write_aligned(
     encoding: PcdEncoding,
 ) -> Result<(), String> {
     let points: Vec<Point> = source.points.iter().map(|p| transform_point(t, p)).collect();
-    match CloudFormat::of(path).map_err(|e| e.0)? {
-        CloudFormat::Xyz => write_cloud_xyz(path, &points),
-        CloudFormat::Pcd => {
-            let rotation = rotation_part(t);
-            let normals: Option<Vec<Point>> = source.normals.as_ref().map(|normals| {
-                normals
-                    .iter()
-                    .map(|n| {
-                        let r = rotation * vector(n);
-                        [r.x, r.y, r.z]
-                    })
-                    .collect()
-            });
-            write_cloud_pcd(path, &points, normals.as_deref(), encoding)
-        }
-    }
+    let rotation = rotation_part(t);
+    let normals: Option<Vec<Point>> = source.normals.as_ref().map(|normals| {
+        normals
+            .iter()
+            .map(|n| {
+                let r = rotation * vector(n);
+                [r.x, r.y, r.z]
+            })
+            .collect()
+    });
+    write_cloud(path, &points, normals.as_deref(), encoding)
 }

@@ -5,7 +5,8 @@
 //! naming the file; malformed input is an error, never a panic (the two crates panic or
 //! allocate without bound on a few malformed headers, which are checked here first).
 //!
-//! Writers: PCD (float32, as PCL stores clouds) and XYZ text.
+//! Writers: PCD (float32, as PCL stores clouds) and XYZ text; [`write_cloud`] picks one by
+//! extension.
 mod pcd;
 mod ply;
 #[cfg(test)]
@@ -69,16 +70,26 @@ impl CloudFormat {
             _ => None,
         }
     }
+
+    /// The format a path's extension names (see [`CloudFormat::from_extension`]).
+    pub fn from_path(path: &Path) -> Option<Self> {
+        Self::from_extension(path.extension().and_then(|e| e.to_str()).unwrap_or(""))
+    }
+
+    /// Whether [`write_cloud`] writes this format: PCD and XYZ text are written, PLY is only
+    /// read.
+    pub fn is_writable(self) -> bool {
+        matches!(self, CloudFormat::Pcd | CloudFormat::Xyz)
+    }
 }
 
 /// Reads a cloud, choosing the format by extension (case-insensitive; see [`CloudFormat`]).
 pub fn read_cloud_with(path: &Path, non_finite: NonFinite) -> Result<CloudFile, String> {
     let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
-    let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    let Some(format) = CloudFormat::from_extension(extension) else {
+    let Some(format) = CloudFormat::from_path(path) else {
         return Err(fail(&format_args!(
             "unknown point-cloud extension {:?} (expected .pcd, .ply, .xyz or .txt)",
-            extension.to_ascii_lowercase()
+            lowercase_extension(path)
         )));
     };
     let bytes = fs::read(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
@@ -105,6 +116,35 @@ pub fn read_transform(path: &Path) -> Result<Matrix4<f64>, String> {
     let fail = |message: &dyn Display| format!("{}: {}", path.display(), one_line(message));
     let text = fs::read_to_string(path).map_err(|e| fail(&format_args!("cannot read file: {e}")))?;
     parse_transform(&text).map_err(|e| fail(&e))
+}
+
+/// Writes a cloud in the format its extension names (see [`CloudFormat`]): a PCD with the
+/// normals when given ([`write_cloud_pcd`], stored as `encoding` says), or XYZ text
+/// ([`write_cloud_xyz`], which has no place for normals). A format that is not
+/// [writable](CloudFormat::is_writable) is an error.
+pub fn write_cloud(
+    path: &Path,
+    points: &[Point],
+    normals: Option<&[Point]>,
+    encoding: PcdEncoding,
+) -> Result<(), String> {
+    match CloudFormat::from_path(path) {
+        Some(CloudFormat::Pcd) => write_cloud_pcd(path, points, normals, encoding),
+        Some(CloudFormat::Xyz) => write_cloud_xyz(path, points),
+        Some(CloudFormat::Ply) | None => Err(format!(
+            "{}: cannot write {:?} point clouds (.pcd, .xyz or .txt can be written)",
+            path.display(),
+            lowercase_extension(path)
+        )),
+    }
+}
+
+/// The extension as messages show it: lower case, empty when there is none.
+fn lowercase_extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
 }
 
 fn write_text(
@@ -319,6 +359,32 @@ mod tests {
                 .is_err()
         );
         assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 1000000000000\nend_header\n").is_err());
+    }
+
+    #[test]
+    fn write_cloud_picks_the_writer_by_extension() {
+        let normals = [[0.0, 0.0, 1.0]; 3];
+        // The samples are float32 values: the PCD holds them exactly.
+        for (name, normals_read) in [("picked.PCD", Some(normals.to_vec())), ("picked.txt", None)] {
+            let path = temp_path(name);
+            write_cloud(&path, &SAMPLE, Some(&normals), PcdEncoding::Ascii).unwrap();
+            let cloud = read_cloud(&path).unwrap();
+            assert_eq!((cloud.points, cloud.normals), (SAMPLE.to_vec(), normals_read));
+            fs::remove_file(&path).unwrap();
+        }
+        for name in ["refused.ply", "refused"] {
+            let path = temp_path(name);
+            let error = write_cloud(&path, &SAMPLE, None, PcdEncoding::Binary).unwrap_err();
+            assert!(error.contains(".pcd, .xyz or .txt can be written"), "{error}");
+            assert!(!path.exists());
+        }
+        assert_eq!(
+            CloudFormat::from_path(Path::new("a/b.Ply")),
+            Some(CloudFormat::Ply)
+        );
+        assert_eq!(CloudFormat::from_path(Path::new("a/b")), None);
+        assert!(CloudFormat::Pcd.is_writable() && CloudFormat::Xyz.is_writable());
+        assert!(!CloudFormat::Ply.is_writable());
     }
 
     #[test]
