@@ -13,7 +13,9 @@ use std::path::Path;
 use std::sync::Once;
 
 use ab_glyph::FontRef;
+use plotters::chart::DualCoordChartContext;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::series::DashedLineSeries;
@@ -123,6 +125,14 @@ fn write_png(path: &Path, (width, height): (u32, u32), rgb: &[u8]) -> Result<(),
 
 type DrawResult<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
 
+/// A panel's chart: counts on the left axis, P(inlier | r) on the right, both over r.
+type PanelChart<'a, DB> = DualCoordChartContext<
+    'a,
+    DB,
+    Cartesian2d<RangedCoordf64, RangedCoordf64>,
+    Cartesian2d<RangedCoordf64, RangedCoordf64>,
+>;
+
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     models: &[HistogramModel],
@@ -146,24 +156,6 @@ fn draw_panel<DB: DrawingBackend>(
     caption: &str,
 ) -> DrawResult<DB> {
     let (lo, hi) = (model.lo, model.hi);
-    let width = model.bin_width();
-    let grid: Vec<f64> = (0..=CURVE_SAMPLES)
-        .map(|i| lo + (hi - lo) * i as f64 / CURVE_SAMPLES as f64)
-        .collect();
-    let show_beta = model.beta >= VISIBLE_BETA_RATIO * model.inlier.sigma;
-    let peak = model
-        .counts
-        .iter()
-        .chain(&model.smoothed)
-        .copied()
-        .chain([
-            model.model(model.inlier.mu, ModelWidth::Sigma),
-            model.model(model.inlier.mu, ModelWidth::SigmaPlusBeta),
-        ])
-        .filter(|v| v.is_finite())
-        .fold(0.0, f64::max);
-    let y_max = if peak > 0.0 { peak * 1.1 } else { 1.0 };
-
     let mut builder = ChartBuilder::on(area);
     builder
         .margin(14)
@@ -174,7 +166,7 @@ fn draw_panel<DB: DrawingBackend>(
         builder.caption(caption, ("sans-serif", 18));
     }
     let mut chart = builder
-        .build_cartesian_2d(lo..hi, 0.0..y_max)?
+        .build_cartesian_2d(lo..hi, 0.0..count_axis_top(model))?
         .set_secondary_coord(lo..hi, 0.0..1.0);
     chart
         .configure_mesh()
@@ -192,7 +184,40 @@ fn draw_panel<DB: DrawingBackend>(
         .label_style(("sans-serif", 15))
         .axis_desc_style(("sans-serif", 17))
         .draw()?;
+    draw_curves(&mut chart, model)?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .label_font(("sans-serif", 15))
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK.mix(0.4))
+        .draw()
+}
 
+/// Top of the count axis: the highest bar or curve with a tenth more above it.
+fn count_axis_top(model: &HistogramModel) -> f64 {
+    let peak = model
+        .counts
+        .iter()
+        .chain(&model.smoothed)
+        .copied()
+        .chain([
+            model.model(model.inlier.mu, ModelWidth::Sigma),
+            model.model(model.inlier.mu, ModelWidth::SigmaPlusBeta),
+        ])
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+    if peak > 0.0 { peak * 1.1 } else { 1.0 }
+}
+
+/// The histogram bars, the smoothed histogram, the fitted model (with σ + β while β shows) and
+/// P(inlier | r), each with its legend entry.
+fn draw_curves<DB: DrawingBackend>(chart: &mut PanelChart<DB>, model: &HistogramModel) -> DrawResult<DB> {
+    let (lo, hi) = (model.lo, model.hi);
+    let width = model.bin_width();
+    let grid: Vec<f64> = (0..=CURVE_SAMPLES)
+        .map(|i| lo + (hi - lo) * i as f64 / CURVE_SAMPLES as f64)
+        .collect();
     chart
         .draw_series(model.counts.iter().enumerate().map(|(bin, &count)| {
             let left = lo + bin as f64 * width;
@@ -217,7 +242,7 @@ fn draw_panel<DB: DrawingBackend>(
             super::numbers::significant(model.inlier.sigma)
         ))
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], MODEL_COLOUR.stroke_width(3)));
-    if show_beta {
+    if model.beta >= VISIBLE_BETA_RATIO * model.inlier.sigma {
         chart
             .draw_series(DashedLineSeries::new(
                 grid.iter()
@@ -241,11 +266,5 @@ fn draw_panel<DB: DrawingBackend>(
         ))?
         .label("P(inlier | r), right axis")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], PROBABILITY_COLOUR.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 15))
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK.mix(0.4))
-        .draw()
+    Ok(())
 }

@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 use sie::geometry::{NOTABLE_CORRECTION, Rigid, make_rigid, rotation_part, transform_point, vector};
-use sie::io::{CloudFile, PcdEncoding, read_cloud_with, read_transform, write_cloud_pcd, write_cloud_xyz};
+use sie::io::{CloudFile, CloudFormat, PcdEncoding, read_cloud_with, read_transform, write_cloud};
 use sie::{
     CostFunction, HistogramMode, Hooks, Metric, NoiseModel, NoiseShape, NonFinite, Point, RegistrationConfig,
     RegistrationResult, StopReason, TraceEntry, Verdict, register_clouds,
@@ -24,34 +24,72 @@ use super::report::{
 };
 use super::{CliError, exit};
 
-/// Formats `--aligned` can write.
-#[derive(Clone, Copy)]
-enum CloudFormat {
-    Pcd,
-    Xyz,
-}
-
-impl CloudFormat {
-    fn of(path: &Path) -> Result<CloudFormat, CliError> {
-        let extension = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
-        match extension.as_str() {
-            "pcd" => Ok(CloudFormat::Pcd),
-            "xyz" | "txt" => Ok(CloudFormat::Xyz),
-            _ => Err(CliError::new(format!(
-                "{}: --aligned writes .pcd, .xyz or .txt, not {extension:?}",
-                path.display()
-            ))),
-        }
-    }
-}
-
 pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     let config = args.config()?;
     check_outputs(args, &config)?;
+    // The live table would interleave with nothing useful in JSON mode; there the trace goes
+    // into the report.
+    let mut progress = Progress::new(args.trace && !args.json, args.quiet, config.max_iterations);
+    let inputs = read_inputs(args, &mut progress)?;
+    let registered = register_with_progress(args, &config, &inputs, &mut progress)?;
+    // Files first, so a failed write is the last thing the user reads; the result is printed
+    // either way.
+    let written = write_outputs(args, &config, &inputs, &registered);
+    print_report(args, &config, &inputs, &registered, &written)?;
+    written.report_failures()?;
+    Ok(exit_code(&config, &registered.result))
+}
+
+/// What the command reads before registering.
+struct Inputs {
+    /// `--init` or `--init-pose`.
+    init: Option<Rigid>,
+    /// `--ground-truth`.
+    truth: Option<Rigid>,
+    source: CloudFile,
+    target: CloudFile,
+    /// The target file's normals, taken from it with `--file-normals`; else estimated.
+    target_normals: Option<Vec<Point>>,
+    /// Time spent reading the two clouds.
+    read_seconds: f64,
+}
+
+/// A finished registration and its time (reading excluded).
+struct Registered {
+    result: RegistrationResult,
+    seconds: f64,
+}
+
+/// The outputs written, and the messages of those that could not be.
+#[derive(Default)]
+struct WrittenFiles {
+    paths: Vec<String>,
+    errors: Vec<String>,
+}
+
+impl WrittenFiles {
+    fn record(&mut self, path: &Path, outcome: Result<(), String>) {
+        match outcome {
+            Ok(()) => self.paths.push(path.display().to_string()),
+            Err(message) => self.errors.push(message),
+        }
+    }
+
+    /// Every failed write: the others on stderr, then the first as the command's error.
+    fn report_failures(&self) -> Result<(), CliError> {
+        let Some(first) = self.errors.first() else {
+            return Ok(());
+        };
+        for message in &self.errors[1..] {
+            eprintln!("sie: {message}");
+        }
+        Err(CliError::new(first))
+    }
+}
+
+/// Reads the guesses (noting any visible rounding) and the two clouds (saying what the files
+/// hold beyond what they declare).
+fn read_inputs(args: &RegisterArgs, progress: &mut Progress) -> Result<Inputs, CliError> {
     let init = match (&args.init, &args.init_pose) {
         (Some(path), _) => Some(rigid_file(path, "--init")?),
         (None, Some(values)) => Some(Rigid {
@@ -76,9 +114,6 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         }
     }
 
-    // The live table would interleave with nothing useful in JSON mode; there the trace goes
-    // into the report.
-    let mut progress = Progress::new(args.trace && !args.json, args.quiet, config.max_iterations);
     let read_start = Instant::now();
     let policy = if args.skip_invalid {
         NonFinite::Skip
@@ -88,7 +123,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     progress.note(&format!("reading {}", args.source.display()));
     let source = read_cloud_with(&args.source, policy).map_err(input_error)?;
     progress.note(&format!("reading {}", args.target.display()));
-    let target = read_cloud_with(&args.target, policy).map_err(input_error)?;
+    let mut target = read_cloud_with(&args.target, policy).map_err(input_error)?;
     // Data the files hold beyond what they declare is said even with -q: it was not read.
     for (path, cloud) in [(&args.source, &source), (&args.target, &target)] {
         for warning in &cloud.warnings {
@@ -96,7 +131,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         }
     }
     let target_normals = if args.file_normals {
-        let normals = target.normals.as_deref().ok_or_else(|| {
+        let normals = target.normals.take().ok_or_else(|| {
             CliError::new(format!(
                 "{}: --file-normals, but the file has no normal_x/y/z or nx/ny/nz fields",
                 args.target.display()
@@ -106,10 +141,26 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
     } else {
         None
     };
-    let read_seconds = read_start.elapsed().as_secs_f64();
+    Ok(Inputs {
+        init,
+        truth,
+        source,
+        target,
+        target_normals,
+        read_seconds: read_start.elapsed().as_secs_f64(),
+    })
+}
 
+/// Registers the source onto the target, with the live progress on stderr; Ctrl-C stops it
+/// after the current iteration.
+fn register_with_progress(
+    args: &RegisterArgs,
+    config: &RegistrationConfig,
+    inputs: &Inputs,
+    progress: &mut Progress,
+) -> Result<Registered, CliError> {
     install_interrupt_handler();
-    progress.note(match (config.metric, target_normals) {
+    progress.note(match (config.metric, &inputs.target_normals) {
         (Metric::PointToPlane, None) => "estimating target normals",
         _ => "registering",
     });
@@ -122,11 +173,11 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             observer: Some(&mut observer),
         };
         register_clouds(
-            &source.points,
-            &target.points,
-            target_normals,
-            init.as_ref().map(|rigid| &rigid.transform),
-            &config,
+            &inputs.source.points,
+            &inputs.target.points,
+            inputs.target_normals.as_deref(),
+            inputs.init.as_ref().map(|rigid| &rigid.transform),
+            config,
             hooks,
         )
     };
@@ -140,31 +191,26 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             args.target.display()
         ))
     })?;
-    let seconds = started.elapsed().as_secs_f64();
+    Ok(Registered {
+        result,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
 
-    let ground_truth = truth.map(|t| {
-        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t.transform);
-        GroundTruthError {
-            rotation_error_deg,
-            translation_error,
-        }
-    });
-    let source_report = cloud_report(&args.source, &source, config.skip_origin);
-    let target_report = cloud_report(&args.target, &target, config.skip_origin);
-    let transform_text = format_transform(&result.transform, "");
-
-    // Files first, so a failed write is the last thing the user reads; the result is printed
-    // either way.
-    let mut written = Vec::new();
-    let mut write_errors = Vec::new();
-    let mut record = |path: &Path, outcome: Result<(), String>| match outcome {
-        Ok(()) => written.push(path.display().to_string()),
-        Err(message) => write_errors.push(message),
-    };
+/// Writes the requested files (`-o`, `--aligned`, `--plot`); a failed one does not stop the
+/// others.
+fn write_outputs(
+    args: &RegisterArgs,
+    config: &RegistrationConfig,
+    inputs: &Inputs,
+    registered: &Registered,
+) -> WrittenFiles {
+    let result = &registered.result;
+    let mut written = WrittenFiles::default();
     if let Some(path) = &args.output {
-        let outcome =
-            fs::write(path, &transform_text).map_err(|e| format!("{}: cannot write: {e}", path.display()));
-        record(path, outcome);
+        let outcome = fs::write(path, format_transform(&result.transform, ""))
+            .map_err(|e| format!("{}: cannot write: {e}", path.display()));
+        written.record(path, outcome);
     }
     if let Some(path) = &args.aligned {
         let encoding = if args.aligned_ascii {
@@ -172,18 +218,42 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         } else {
             PcdEncoding::Binary
         };
-        record(path, write_aligned(path, &source, &result.transform, encoding));
+        written.record(
+            path,
+            write_aligned(path, &inputs.source, &result.transform, encoding),
+        );
     }
     if let Some(path) = &args.plot {
-        let text = plot_text(args, &config, &result);
+        let text = plot_text(args, config, result);
         let plot_text = PlotText {
-            title: &text.0,
-            x_label: &text.1,
-            panel_captions: text.2,
+            title: &text.title,
+            x_label: &text.x_label,
+            panel_captions: text.panel_captions,
         };
-        record(path, write_plot(path, &result.histograms, &plot_text));
+        written.record(path, write_plot(path, &result.histograms, &plot_text));
     }
+    written
+}
 
+/// The result on stdout (the transform, or the JSON report with `--json`) and, unless `-q`,
+/// the summary on stderr.
+fn print_report(
+    args: &RegisterArgs,
+    config: &RegistrationConfig,
+    inputs: &Inputs,
+    registered: &Registered,
+    written: &WrittenFiles,
+) -> Result<(), CliError> {
+    let Registered { result, seconds } = registered;
+    let ground_truth = inputs.truth.map(|t| {
+        let (rotation_error_deg, translation_error) = pose_error(&result.transform, &t.transform);
+        GroundTruthError {
+            rotation_error_deg,
+            translation_error,
+        }
+    });
+    let source_report = cloud_report(&args.source, &inputs.source, config.skip_origin);
+    let target_report = cloud_report(&args.target, &inputs.target, config.skip_origin);
     if args.json {
         let report = JsonReport {
             source: &source_report,
@@ -202,48 +272,47 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
             noise_shape: result.noise_shape,
             inlier_fraction: result.inlier_fraction,
             rmse: result.rmse,
-            seconds,
-            read_seconds,
+            seconds: *seconds,
+            read_seconds: inputs.read_seconds,
             ground_truth,
-            init_correction: init.map(|rigid| rigid.correction),
-            ground_truth_correction: truth.map(|rigid| rigid.correction),
-            quality: quality_report(&result),
-            search: search_row(&result),
+            init_correction: inputs.init.map(|rigid| rigid.correction),
+            ground_truth_correction: inputs.truth.map(|rigid| rigid.correction),
+            quality: quality_report(result),
+            search: search_row(result),
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;
         println!("{json}");
     } else {
-        print!("{transform_text}");
+        print!("{}", format_transform(&result.transform, ""));
     }
     if !args.quiet {
         let context = SummaryContext {
             source: &source_report,
             target: &target_report,
-            method: method_description(args, &config),
-            target_note: match (config.metric, target_normals) {
+            method: method_description(args, config),
+            target_note: match (config.metric, &inputs.target_normals) {
                 (Metric::PointToPoint, _) => "point-to-point".into(),
                 (Metric::PointToPlane, Some(_)) => "normals from the file".into(),
                 (Metric::PointToPlane, None) => {
                     format!("normals from {} neighbours", config.normal_neighbours)
                 }
             },
-            units: units(&config),
-            seconds,
-            read_seconds,
+            units: units(config),
+            seconds: *seconds,
+            read_seconds: inputs.read_seconds,
             ground_truth,
             judged: config.cost == CostFunction::Sie,
-            written,
+            written: written.paths.clone(),
         };
-        eprint!("{}", summary(&result, &context));
+        eprint!("{}", summary(result, &context));
     }
-    if let Some(first) = write_errors.first() {
-        for message in &write_errors[1..] {
-            eprintln!("sie: {message}");
-        }
-        return Err(CliError::new(first));
-    }
-    Ok(match result.stop_reason {
+    Ok(())
+}
+
+/// The exit code for a registration that ran to its end (see [`exit`]).
+fn exit_code(config: &RegistrationConfig, result: &RegistrationResult) -> u8 {
+    match result.stop_reason {
         // The verdict judges SIE's fitted noise model; a baseline cost has none (L2) or the
         // caller's scale, so its verdict does not set the exit code.
         StopReason::Converged if config.cost != CostFunction::Sie => exit::CONVERGED,
@@ -251,7 +320,7 @@ pub fn run(args: &RegisterArgs) -> Result<u8, CliError> {
         StopReason::Converged => exit::NOT_GOOD,
         StopReason::IterationLimit | StopReason::Degenerate => exit::NOT_CONVERGED,
         StopReason::Cancelled => exit::CANCELLED,
-    })
+    }
 }
 
 /// Rejects output requests that cannot succeed before spending time on the registration.
@@ -265,8 +334,15 @@ fn check_outputs(args: &RegisterArgs, config: &RegistrationConfig) -> Result<(),
             )));
         }
     }
-    if let Some(path) = &args.aligned {
-        CloudFormat::of(path)?;
+    if let Some(path) = args.aligned.as_deref() {
+        if !CloudFormat::from_path(path).is_some_and(CloudFormat::is_writable) {
+            let extension = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+            return Err(CliError::new(format!(
+                "{}: --aligned writes .pcd, .xyz or .txt, not {:?}",
+                path.display(),
+                extension.to_ascii_lowercase()
+            )));
+        }
     }
     for path in [&args.output, &args.aligned, &args.plot].into_iter().flatten() {
         let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
@@ -360,12 +436,15 @@ fn method_description(args: &RegisterArgs, config: &RegistrationConfig) -> Strin
     parts.join(", ")
 }
 
+/// The `--plot` figure's text, owned ([`PlotText`] borrows it).
+struct PlotCaptions {
+    title: String,
+    x_label: String,
+    panel_captions: Vec<String>,
+}
+
 /// Title, x-axis label and per-panel captions of the `--plot` figure.
-fn plot_text(
-    args: &RegisterArgs,
-    config: &RegistrationConfig,
-    result: &RegistrationResult,
-) -> (String, String, Vec<String>) {
+fn plot_text(args: &RegisterArgs, config: &RegistrationConfig, result: &RegistrationResult) -> PlotCaptions {
     let file_name = |p: &Path| {
         p.file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -396,7 +475,11 @@ fn plot_text(
     } else {
         Vec::new()
     };
-    (title, x_label, captions)
+    PlotCaptions {
+        title,
+        x_label,
+        panel_captions: captions,
+    }
 }
 
 /// Writes the source cloud moved into the target frame, normals rotated along.
@@ -407,20 +490,15 @@ fn write_aligned(
     encoding: PcdEncoding,
 ) -> Result<(), String> {
     let points: Vec<Point> = source.points.iter().map(|p| transform_point(t, p)).collect();
-    match CloudFormat::of(path).map_err(|e| e.0)? {
-        CloudFormat::Xyz => write_cloud_xyz(path, &points),
-        CloudFormat::Pcd => {
-            let rotation = rotation_part(t);
-            let normals: Option<Vec<Point>> = source.normals.as_ref().map(|normals| {
-                normals
-                    .iter()
-                    .map(|n| {
-                        let r = rotation * vector(n);
-                        [r.x, r.y, r.z]
-                    })
-                    .collect()
-            });
-            write_cloud_pcd(path, &points, normals.as_deref(), encoding)
-        }
-    }
+    let rotation = rotation_part(t);
+    let normals: Option<Vec<Point>> = source.normals.as_ref().map(|normals| {
+        normals
+            .iter()
+            .map(|n| {
+                let r = rotation * vector(n);
+                [r.x, r.y, r.z]
+            })
+            .collect()
+    });
+    write_cloud(path, &points, normals.as_deref(), encoding)
 }
