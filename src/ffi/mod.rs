@@ -10,6 +10,8 @@
 
 mod boundary;
 mod callback;
+#[macro_use] // `CEnum!`, for the enums below
+mod c_enum;
 mod input;
 
 // cbindgen emits functions in parse order (this file, then these modules as declared), so
@@ -31,8 +33,10 @@ use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::{RegistrationConfig, RegistrationResult};
-use boundary::{FfiError, static_c_str, without_context};
+use boundary::{static_c_str, without_context};
+pub(crate) use c_enum::CEnum;
 use callback::{NoiseCallback, ProgressCallback};
+use macro_rules_attribute::macro_rules_derive;
 
 pub use estimate::*;
 pub use register::*;
@@ -45,6 +49,7 @@ pub use target::*;
 /// (`sie_status_str`) take it as `uint32_t`.
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_status {
     /// Success; outputs were written.
     Ok = 0,
@@ -82,27 +87,6 @@ pub enum sie_status {
 }
 
 impl sie_status {
-    /// Every status, for the `u32` -> `sie_status` mapping of `sie_status_str`.
-    const ALL: [sie_status; 12] = [
-        Self::Ok,
-        Self::NullArgument,
-        Self::InvalidArgument,
-        Self::NonFiniteInput,
-        Self::TooFewPoints,
-        Self::CallbackFailed,
-        Self::NoResult,
-        Self::BufferTooSmall,
-        Self::Busy,
-        Self::Cancelled,
-        Self::OutOfMemory,
-        Self::Panic,
-    ];
-
-    /// The status with this numeric value, `None` for values that are not a `sie_status`.
-    fn from_u32(value: u32) -> Option<Self> {
-        Self::ALL.into_iter().find(|&status| status as u32 == value)
-    }
-
     /// The short text `sie_status_str` returns for this status (static, NUL-terminated).
     const fn message(self) -> &'static CStr {
         match self {
@@ -125,6 +109,7 @@ impl sie_status {
 /// The robust cost used to weight correspondences (`sie_context_set_cost_function`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_cost_function {
     /// Statistical Inlier Estimation: self-tuning, no parameter (the default).
     Sie = 0,
@@ -150,6 +135,7 @@ pub enum sie_cost_function {
 /// The residual of cloud registration (`sie_context_set_metric`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_metric {
     /// r = T*p_source - p_target (3 components).
     PointToPoint = 0,
@@ -160,6 +146,7 @@ pub enum sie_metric {
 /// Built-in per-point noise model (`sie_context_set_noise_model`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_noise_model {
     /// Same noise everywhere (the default): residuals are not normalised.
     Constant = 0,
@@ -170,6 +157,7 @@ pub enum sie_noise_model {
 /// Which residuals share an SIE histogram (`sie_context_set_histogram_mode`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_histogram_mode {
     /// One histogram of |r| over all residual components (the default).
     Pooled = 0,
@@ -180,6 +168,7 @@ pub enum sie_histogram_mode {
 /// Why a registration stopped (`sie_summary.stop_reason`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_stop_reason {
     /// No result.
     None = 0,
@@ -197,6 +186,7 @@ pub enum sie_stop_reason {
 /// Where SIE starts (`sie_context_set_starts`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_starts {
     /// Several starts, the most significant result is kept (the default). Correspondences:
     /// the initial guess and the best poses of a threshold-free hypothesis search. Clouds: the
@@ -213,6 +203,7 @@ pub enum sie_starts {
 /// says whether the data support the pose they settled at.
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_verdict {
     /// No result (a summary that was never filled).
     None = 0,
@@ -231,6 +222,7 @@ pub enum sie_verdict {
 /// Which start the returned transform came from (`sie_summary.start`).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_start_kind {
     /// The caller's initial guess (the identity when none was given) with the paper's beta0.
     InitialGuess = 0,
@@ -247,6 +239,7 @@ pub enum sie_start_kind {
 /// Which cloud a noise callback call is about (its `cloud` argument).
 #[repr(u32)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[macro_rules_derive(CEnum!)]
 pub enum sie_cloud {
     /// The source cloud (the one moved by T_target_source).
     Source = 0,
@@ -737,42 +730,6 @@ mod message_copies {
         });
     }
 }
-
-/// C enums are taken as `uint32_t`; this decodes them and rejects unknown values.
-pub(crate) trait CEnum: Copy + 'static {
-    const ALL: &'static [Self];
-    fn code(self) -> u32;
-
-    fn decode(value: u32, argument: &str) -> Result<Self, FfiError> {
-        Self::ALL
-            .iter()
-            .copied()
-            .find(|e| e.code() == value)
-            .ok_or_else(|| {
-                let last = Self::ALL.iter().map(|e| e.code()).max().unwrap_or(0);
-                FfiError::invalid(format!(
-                    "{argument} = {value} is not a known value (valid: 0..={last})"
-                ))
-            })
-    }
-}
-
-macro_rules! c_enum_values {
-    ($name:ident: $($variant:ident),+ $(,)?) => {
-        impl CEnum for $name {
-            const ALL: &'static [Self] = &[$($name::$variant),+];
-            fn code(self) -> u32 {
-                self as u32
-            }
-        }
-    };
-}
-
-c_enum_values!(sie_cost_function: Sie, L2, TruncatedL2, Lp, StudentT, Huber, Cauchy, GemanMcclure, Tukey);
-c_enum_values!(sie_metric: PointToPoint, PointToPlane);
-c_enum_values!(sie_noise_model: Constant, QuadraticDepth);
-c_enum_values!(sie_histogram_mode: Pooled, PerColumn);
-c_enum_values!(sie_starts: Automatic, InitialGuess);
 
 // The tests call the ABI on buffers they own and size for each call.
 #[cfg(test)]
