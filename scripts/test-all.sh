@@ -22,6 +22,8 @@ echo "== rustfmt"
 cargo fmt --all -- --check
 echo "== clippy"
 cargo clippy --release --all-targets --locked -- -D warnings
+echo "== rustdoc (no broken or private link)"
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked
 echo "== tests (unit, integration, C ABI, header, doc examples)"
 # Property tests draw new cases on every run; the suite pins proptest's seed so a run is
 # reproducible (a rare case cannot turn CI red at random). Plain `cargo test` explores with

@@ -252,7 +252,8 @@ pub struct Solve {
 const UNSCALED_MAX_EXPONENT: i32 = 64;
 
 /// argmin_{R,t} Σ w_i‖R·a_i + t − b_i‖² (weighted Kabsch / Umeyama without scale).
-/// `None` when the weights sum to zero. Any finite coordinates: see [`UNSCALED_MAX_EXPONENT`].
+/// `None` when the weights sum to zero. Any finite coordinates: beyond 2^±64 the points are
+/// scaled by a power of two first, so their squares neither overflow nor underflow.
 pub fn weighted_rigid_fit(pairs: &[(Point, Point)], weights: &[f64]) -> Option<Solve> {
     weighted_rigid_fit_by(pairs.len(), |i| pairs[i], weights)
 }

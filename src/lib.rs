@@ -26,8 +26,20 @@
 // and every block there states why it is sound.
 #![deny(unsafe_code)]
 #![warn(clippy::undocumented_unsafe_blocks)]
-// Every public item says what it is for (units, ranges) where a user reads it.
+// Every public item says what it is for (units, ranges) where a user reads it, and the docs
+// build without a broken or private link (scripts/test-all.sh denies rustdoc's warnings).
 #![warn(missing_docs)]
+#![warn(
+    rustdoc::broken_intra_doc_links,
+    rustdoc::private_intra_doc_links,
+    rustdoc::missing_crate_level_docs,
+    rustdoc::invalid_codeblock_attributes,
+    rustdoc::invalid_html_tags,
+    rustdoc::invalid_rust_codeblocks,
+    rustdoc::bare_urls,
+    rustdoc::redundant_explicit_links,
+    rustdoc::unescaped_backticks
+)]
 
 // One path per public item: the registration and the estimator are reached through the
 // re-exports below (their modules are private); `geometry`, `io` and `synthetic` are toolboxes

@@ -37,8 +37,10 @@ const FAR_QUERY: f64 = 3.273_390_607_896_142e150; // 2^500
 ///   location is indexed once, so ties between identical points cannot make a query visit
 ///   every copy (quadratic time); queries still answer over all points, and the index
 ///   reported for a duplicated location is its lowest;
-/// * coordinates whose squares overflow or underflow (see [`UNSCALED_MAX_EXPONENT`]);
-/// * queries that are not finite (no neighbour) or astronomically far (see [`FAR_QUERY`]).
+/// * coordinates whose squares overflow or underflow (beyond 2^±64 the tree holds them
+///   scaled by a power of two);
+/// * queries that are not finite (no neighbour) or astronomically far (beyond 2^500 from the
+///   origin: searched from that distance along the query's ray).
 pub struct NearestNeighbours {
     /// Built on the distinct locations, items are location ids (see `locations`).
     tree: Tree,

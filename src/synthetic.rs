@@ -27,8 +27,8 @@ pub struct Correspondences {
 
 /// The paper's simulation (footnote in §6).
 ///
-/// * Inliers: A uniform in [0,1]³, B = A + N(0, σ²) per axis.
-/// * Outliers: A uniform in [0,1]³, B uniform in A + [−1,1]³.
+/// * Inliers: A uniform in \[0,1\]³, B = A + N(0, σ²) per axis.
+/// * Outliers: A uniform in \[0,1\]³, B uniform in A + \[−1,1\]³.
 /// * Then the inliers' A are transformed by `t0`: source = T0·A.
 ///
 /// Inliers come first, then outliers. Registration maps source → target, so the ideal answer
@@ -90,7 +90,7 @@ fn random_direction(rng: &mut Xoshiro256PlusPlus) -> Unit<Vector3<f64>> {
 
 /// The paper's simulation with a second structure among the outliers: of the `outliers`
 /// pairs, the first `structured` follow their own rigid motion `other` exactly like the inliers
-/// follow `t0` (A uniform in [0,1]³, B = A + N(0, σ²), source = other·A); the rest are the
+/// follow `t0` (A uniform in \[0,1\]³, B = A + N(0, σ²), source = other·A); the rest are the
 /// paper's random outliers. Only the `inliers` pairs (first) are marked as inliers: a
 /// registration should find them, the larger set, and not the structured outliers.
 ///
@@ -194,7 +194,7 @@ pub fn room_scene(points: usize, noise_sigma: f64, seed: u64) -> RoomScene {
 pub struct Trajectory {
     /// Frame i: what the scanner saw, in its own (sensor) frame.
     pub frames: Vec<Vec<Point>>,
-    /// T_world_sensor of frame i: p_world = poses[i] · p_sensor.
+    /// T_world_sensor of frame i: p_world = `poses[i]` · p_sensor.
     pub poses: Vec<Matrix4<f64>>,
 }
 

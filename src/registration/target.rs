@@ -165,7 +165,7 @@ impl PreparedTarget {
     ///
     /// Errors: fewer than 3 (finite) points, a non-finite coordinate or normal (unless
     /// [`NonFinite::Skip`]), a normal count that differs from the point count, a finite normal
-    /// that is neither of unit length nor 0 0 0 ([`require_unit_normals`]), a bad
+    /// that is neither of unit length (within [`NORMAL_LENGTH_TOLERANCE`](crate::NORMAL_LENGTH_TOLERANCE)) nor 0 0 0, a bad
     /// `normal_neighbours`, more than u32::MAX − 1 points.
     pub fn new(target: &[Point], normals: Option<&[Point]>, options: &PrepareOptions) -> Result<Self, Error> {
         require_normal_neighbours(options.normal_neighbours)?;
