@@ -462,7 +462,7 @@ typedef struct sie_summary {
      */
     double penalty;
     /**
-     * Noise shape exponent p (2 = Gaussian unless estimated).
+     * Noise shape p (2 = Gaussian unless estimated).
      */
     double noise_shape;
     /**
@@ -667,9 +667,9 @@ typedef struct sie_model {
      */
     double alpha;
     /**
-     * Shape exponent p of the generalised Gaussian (2 = Gaussian).
+     * Noise shape p of the generalised Gaussian (2 = Gaussian), as `sie_summary.noise_shape`.
      */
-    double shape;
+    double noise_shape;
     /**
      * Regulariser beta added to sigma when predicting.
      */
@@ -864,7 +864,7 @@ sie_status sie_context_set_noise_model(struct sie_context *ctx, uint32_t model);
 sie_status sie_context_set_noise_callback(struct sie_context *ctx, sie_noise_fn noise_fn, void *user_data);
 
 /**
- * Sets the shape exponent p of the inlier noise model: p > 0 is fixed (in [0.1, 10]; 2 =
+ * Sets the noise shape p of the inlier model: p > 0 is fixed (in [0.1, 10]; 2 =
  * Gaussian, 1 = Laplacian), p = 0 estimates it from the data. Default: 2.
  *
  * # Safety

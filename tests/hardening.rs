@@ -529,7 +529,7 @@ fn sie_handles_identical_flat_clean_and_overwhelmed_residuals() {
             model.mu,
             model.sigma,
             model.alpha,
-            model.shape,
+            model.noise_shape,
             model.range_lo,
             model.range_hi,
         ] {

@@ -324,7 +324,7 @@ fn estimate_inliers_few_samples_near_the_top_of_f64() {
         let mut residuals = vec![big; 11];
         residuals.push(small);
         for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
-            for shape_exponent in [
+            for noise_shape in [
                 NoiseShape::Fixed(2.0),
                 NoiseShape::Fixed(1.0),
                 NoiseShape::Estimated,
@@ -332,10 +332,10 @@ fn estimate_inliers_few_samples_near_the_top_of_f64() {
                 for beta in [0.0, 0.05] {
                     let options = SieOptions {
                         histogram,
-                        shape_exponent,
+                        noise_shape,
                         ..SieOptions::default()
                     };
-                    let case = format!("{big:e}/{small:e} {histogram:?} {shape_exponent:?} beta {beta}");
+                    let case = format!("{big:e}/{small:e} {histogram:?} {noise_shape:?} beta {beta}");
                     let estimate = estimate_inliers(&residuals, 1, None, beta, &options).unwrap();
                     assert!(
                         estimate.probabilities.iter().all(|p| (0.0..=1.0).contains(p)),
@@ -407,14 +407,14 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
     ];
     for (name, residuals, reach, outliers) in &cases {
         for histogram in [HistogramMode::Pooled, HistogramMode::PerColumn] {
-            for shape_exponent in [
+            for noise_shape in [
                 NoiseShape::Fixed(2.0),
                 NoiseShape::Fixed(1.0),
                 NoiseShape::Estimated,
             ] {
                 let options = SieOptions {
                     histogram,
-                    shape_exponent,
+                    noise_shape,
                     ..SieOptions::default()
                 };
                 let estimate = estimate_inliers(residuals, 1, None, 0.0, &options).unwrap();
@@ -428,11 +428,11 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
                 // and before range refits stopped widening a full histogram up to 2.6e7×.
                 assert!(
                     sigma.is_finite() && sigma <= 2.0 * reach,
-                    "{name}, {histogram:?}, {shape_exponent:?}: σ = {sigma} for a cluster within {reach}"
+                    "{name}, {histogram:?}, {noise_shape:?}: σ = {sigma} for a cluster within {reach}"
                 );
                 assert!(
                     worst_outlier < 0.01,
-                    "{name}, {histogram:?}, {shape_exponent:?}: an outlier at ±3 has P = {worst_outlier}"
+                    "{name}, {histogram:?}, {noise_shape:?}: an outlier at ±3 has P = {worst_outlier}"
                 );
             }
         }

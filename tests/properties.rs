@@ -28,7 +28,7 @@ fn options(pooled: bool, shape: u8) -> SieOptions {
         } else {
             HistogramMode::PerColumn
         },
-        shape_exponent: match shape {
+        noise_shape: match shape {
             0 => NoiseShape::Fixed(2.0),
             1 => NoiseShape::Fixed(1.0),
             _ => NoiseShape::Estimated,

@@ -228,11 +228,11 @@ fn per_column_histograms_and_estimated_shape_also_register() {
             ..Default::default()
         },
         sie::SieOptions {
-            shape_exponent: NoiseShape::Estimated,
+            noise_shape: NoiseShape::Estimated,
             ..Default::default()
         },
         sie::SieOptions {
-            shape_exponent: NoiseShape::Fixed(1.0),
+            noise_shape: NoiseShape::Fixed(1.0),
             ..Default::default()
         },
     ] {
@@ -248,7 +248,7 @@ fn per_column_histograms_and_estimated_shape_also_register() {
         if sie.histogram == HistogramMode::PerColumn {
             assert_eq!(result.sigma.len(), 3);
         }
-        if sie.shape_exponent == NoiseShape::Estimated {
+        if sie.noise_shape == NoiseShape::Estimated {
             // Gaussian noise: the estimated exponent is near 2.
             assert!((result.noise_shape - 2.0).abs() < 0.5, "p {}", result.noise_shape);
         }

@@ -357,7 +357,7 @@ pub fn appendix_methods() -> Vec<Method> {
     let with_shape = |key, label, shape| {
         let mut m = method(key, label, CostFunction::Sie);
         m.config.sie = SieOptions {
-            shape_exponent: shape,
+            noise_shape: shape,
             ..SieOptions::default()
         };
         m

@@ -47,7 +47,7 @@ fn defaults() -> RegistrationConfig {
 }
 
 fn default_noise_shape() -> f64 {
-    match SieOptions::default().shape_exponent {
+    match SieOptions::default().noise_shape {
         NoiseShape::Fixed(p) => p,
         NoiseShape::Estimated => 0.0,
     }
@@ -342,7 +342,7 @@ impl RegisterArgs {
             skip_origin: self.skip_origin,
             ..RegistrationConfig::default()
         };
-        config.sie.shape_exponent = if self.noise_shape == 0.0 {
+        config.sie.noise_shape = if self.noise_shape == 0.0 {
             NoiseShape::Estimated
         } else {
             NoiseShape::Fixed(self.noise_shape)

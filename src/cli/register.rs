@@ -418,7 +418,7 @@ fn method_description(args: &RegisterArgs, config: &RegistrationConfig) -> Strin
         NoiseModel::QuadraticDepth => "noise ∝ depth²".into(),
     });
     if config.cost == CostFunction::Sie {
-        match config.sie.shape_exponent {
+        match config.sie.noise_shape {
             NoiseShape::Fixed(2.0) => {}
             NoiseShape::Fixed(p) => parts.push(format!("noise shape p = {p}")),
             NoiseShape::Estimated => parts.push("noise shape estimated".into()),

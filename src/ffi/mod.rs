@@ -297,7 +297,7 @@ pub struct sie_summary {
     pub beta: [f64; 3],
     /// Final penalty k of the histogram fit (first histogram).
     pub penalty: f64,
-    /// Noise shape exponent p (2 = Gaussian unless estimated).
+    /// Noise shape p (2 = Gaussian unless estimated).
     pub noise_shape: f64,
     /// sum P(inlier) / source_count at the returned transform (unmatched points count 0).
     pub inlier_fraction: f64,
@@ -365,8 +365,8 @@ pub struct sie_model {
     pub sigma: f64,
     /// Model height at the peak, in counts per bin.
     pub alpha: f64,
-    /// Shape exponent p of the generalised Gaussian (2 = Gaussian).
-    pub shape: f64,
+    /// Noise shape p of the generalised Gaussian (2 = Gaussian), as `sie_summary.noise_shape`.
+    pub noise_shape: f64,
     /// Regulariser beta added to sigma when predicting.
     pub beta: f64,
     /// Penalty k used for the fit.

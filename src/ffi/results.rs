@@ -90,7 +90,7 @@ pub(crate) fn model_of(histogram: &HistogramModel) -> sie_model {
         mu: histogram.inlier.mu,
         sigma: histogram.inlier.sigma,
         alpha: histogram.inlier.alpha,
-        shape: histogram.inlier.p,
+        noise_shape: histogram.inlier.p,
         beta: histogram.beta,
         penalty: histogram.penalty,
         range_lo: histogram.lo,

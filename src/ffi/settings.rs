@@ -226,7 +226,7 @@ pub unsafe extern "C" fn sie_context_set_noise_callback(
     })
 }
 
-/// Sets the shape exponent p of the inlier noise model: p > 0 is fixed (in [0.1, 10]; 2 =
+/// Sets the noise shape p of the inlier model: p > 0 is fixed (in [0.1, 10]; 2 =
 /// Gaussian, 1 = Laplacian), p = 0 estimates it from the data. Default: 2.
 ///
 /// # Safety
@@ -236,7 +236,7 @@ pub unsafe extern "C" fn sie_context_set_noise_shape(ctx: *mut sie_context, p: f
     // SAFETY: forwarded contract.
     unsafe {
         update_config(ctx, |config| {
-            config.sie.shape_exponent = if p == 0.0 {
+            config.sie.noise_shape = if p == 0.0 {
                 NoiseShape::Estimated
             } else {
                 NoiseShape::Fixed(p)

@@ -64,7 +64,7 @@ impl SieEstimator {
         if self.models.len() == count {
             return;
         }
-        let p = match self.options.shape_exponent {
+        let p = match self.options.noise_shape {
             NoiseShape::Fixed(p) => p,
             NoiseShape::Estimated => 2.0,
         };
@@ -114,7 +114,7 @@ impl SieEstimator {
     /// Sets every histogram's model to σ, k and (when the shape is estimated) p: a warm start
     /// from an earlier fit. `prepare` must have created the models.
     pub fn set_model(&mut self, sigma: f64, penalty: f64, shape: f64) {
-        let estimated = self.options.shape_exponent == NoiseShape::Estimated;
+        let estimated = self.options.noise_shape == NoiseShape::Estimated;
         for m in &mut self.models {
             m.inlier.sigma = sigma;
             m.penalty = penalty;
@@ -251,10 +251,10 @@ impl SieEstimator {
         self.models.iter().map(|m| m.inlier.sigma + m.beta).collect()
     }
 
-    /// The mean shape exponent p over histograms (2 unless estimated).
-    pub fn mean_shape_exponent(&self) -> f64 {
+    /// The noise shape p, the mean over histograms (2 unless estimated).
+    pub fn noise_shape(&self) -> f64 {
         if self.models.is_empty() {
-            return match self.options.shape_exponent {
+            return match self.options.noise_shape {
                 NoiseShape::Fixed(p) => p,
                 NoiseShape::Estimated => 2.0,
             };
@@ -346,7 +346,7 @@ mod tests {
             })
             .collect();
         let mut sie = SieEstimator::new(SieOptions {
-            shape_exponent: NoiseShape::Estimated,
+            noise_shape: NoiseShape::Estimated,
             ..SieOptions::default()
         });
         for _ in 0..3 {

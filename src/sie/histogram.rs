@@ -343,7 +343,7 @@ impl HistogramModel {
                 )
             })
         };
-        match options.shape_exponent {
+        match options.noise_shape {
             NoiseShape::Fixed(p) => {
                 self.inlier.p = p;
                 self.inlier.sigma = fit_sigma(self.inlier);

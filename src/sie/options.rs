@@ -37,8 +37,8 @@ pub enum GammaRule {
 pub struct SieOptions {
     /// Which residuals share a histogram (pooled |r| or one per column).
     pub histogram: HistogramMode,
-    /// The inlier density's shape exponent p: fixed, or estimated with σ.
-    pub shape_exponent: NoiseShape,
+    /// The inlier density's noise shape p: fixed, or estimated with σ.
+    pub noise_shape: NoiseShape,
     /// Samples per bin: bins = round(n_in_range / data_per_bin) (§4.5, 40 in the experiments).
     pub data_per_bin: f64,
     /// Fewest histogram bins, however few samples are in range.
@@ -67,7 +67,7 @@ impl Default for SieOptions {
     fn default() -> Self {
         SieOptions {
             histogram: HistogramMode::Pooled,
-            shape_exponent: NoiseShape::Fixed(2.0),
+            noise_shape: NoiseShape::Fixed(2.0),
             data_per_bin: 40.0,
             min_bins: 50,
             max_bins: 1000,
@@ -126,7 +126,7 @@ impl SieOptions {
                 self.penalty_exponent
             ));
         }
-        if let NoiseShape::Fixed(p) = self.shape_exponent {
+        if let NoiseShape::Fixed(p) = self.noise_shape {
             if !(p.is_finite() && (0.1..=10.0).contains(&p)) {
                 return Err(format!("noise shape p must be in [0.1, 10], got {p}"));
             }

@@ -263,7 +263,7 @@ impl Schedule {
         estimator.probabilities(normalised, cols, weights);
         self.inlier_mass = weights.iter().sum();
         let estimator = &self.estimator;
-        let p = estimator.mean_shape_exponent();
+        let p = estimator.noise_shape();
         let delta = (SHAPE_DELTA * self.width()).max(1e-12);
         for (i, w) in weights.iter_mut().enumerate() {
             let scale = row_scale(i);

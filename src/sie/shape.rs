@@ -19,7 +19,7 @@ pub struct GeneralisedGaussian {
     pub mu: f64,
     /// Width σ (> 0), in the residuals' units.
     pub sigma: f64,
-    /// Shape exponent p (2 Gaussian, 1 Laplacian; in [0.1, 10]).
+    /// The noise shape p (2 Gaussian, 1 Laplacian; in [0.1, 10]).
     pub p: f64,
 }
 
@@ -88,7 +88,7 @@ pub fn sigma_cost(model: &GeneralisedGaussian, centres: &[f64], hist: &[f64], k:
     (cost, deriv)
 }
 
-/// Total penalty and dC/dp for the shape exponent (appendix: "SIE can be used to find an estimate of p").
+/// Total penalty and dC/dp for the noise shape p (appendix: "SIE can be used to find an estimate of p").
 pub fn shape_cost(model: &GeneralisedGaussian, centres: &[f64], hist: &[f64], k: f64) -> (f64, f64) {
     let mut cost = 0.0;
     let mut deriv = 0.0;

@@ -256,7 +256,7 @@ class Model:
     mu: float
     sigma: float
     alpha: float
-    shape: float
+    noise_shape: float
     beta: float
     penalty: float
     range_lo: float
@@ -301,7 +301,7 @@ class InlierEstimate:
 
 def _model(raw: _native.sie_model) -> Model:
     return Model(
-        raw.mu, raw.sigma, raw.alpha, raw.shape, raw.beta, raw.penalty, raw.range_lo, raw.range_hi,
+        raw.mu, raw.sigma, raw.alpha, raw.noise_shape, raw.beta, raw.penalty, raw.range_lo, raw.range_hi,
         raw.mean_inlier_probability, int(raw.bins), int(raw.samples_in_range), bool(raw.peak_found),
     )
 

@@ -56,7 +56,7 @@ class sie_model(ctypes.Structure):
         ("mu", ctypes.c_double),
         ("sigma", ctypes.c_double),
         ("alpha", ctypes.c_double),
-        ("shape", ctypes.c_double),
+        ("noise_shape", ctypes.c_double),
         ("beta", ctypes.c_double),
         ("penalty", ctypes.c_double),
         ("range_lo", ctypes.c_double),

@@ -29,9 +29,9 @@ fn setters_store_valid_values() {
         assert_eq!(sie_context_set_metric(ctx.0, 0), sie_status::Ok);
         assert_eq!(ctx.config().metric, Metric::PointToPoint);
         assert_eq!(sie_context_set_noise_shape(ctx.0, 0.0), sie_status::Ok);
-        assert_eq!(ctx.config().sie.shape_exponent, NoiseShape::Estimated);
+        assert_eq!(ctx.config().sie.noise_shape, NoiseShape::Estimated);
         assert_eq!(sie_context_set_noise_shape(ctx.0, 1.0), sie_status::Ok);
-        assert_eq!(ctx.config().sie.shape_exponent, NoiseShape::Fixed(1.0));
+        assert_eq!(ctx.config().sie.noise_shape, NoiseShape::Fixed(1.0));
         assert_eq!(sie_context_set_histogram_mode(ctx.0, 1), sie_status::Ok);
         assert_eq!(ctx.config().sie.histogram, HistogramMode::PerColumn);
         assert_eq!(sie_context_set_regularizer(ctx.0, 0.0, 0.25), sie_status::Ok);
@@ -138,7 +138,7 @@ fn documented_defaults_match_the_core() {
         (1e-6, 1e-6)
     );
     assert_eq!(config.noise, crate::noise::NoiseModel::Constant);
-    assert_eq!(config.sie.shape_exponent, NoiseShape::Fixed(2.0));
+    assert_eq!(config.sie.noise_shape, NoiseShape::Fixed(2.0));
     assert_eq!(config.sie.histogram, HistogramMode::Pooled);
     assert_eq!((config.initial_beta, config.beta_shrink), (None, 0.5));
     assert_eq!(config.max_correspondences, 0);

@@ -20,7 +20,7 @@ pub(crate) struct ModelSummary {
     pub(crate) beta: Vec<f64>,
     /// k of the first histogram (0 for baselines).
     pub(crate) penalty: f64,
-    /// Mean shape exponent p.
+    /// Noise shape p (the mean over histograms).
     pub(crate) noise_shape: f64,
 }
 
@@ -128,7 +128,7 @@ impl Weighting {
                     sigma: models.iter().map(|m| m.inlier.sigma).collect(),
                     beta: models.iter().map(|m| m.beta).collect(),
                     penalty: models.first().map_or(0.0, |m| m.penalty),
-                    noise_shape: schedule.estimator().mean_shape_exponent(),
+                    noise_shape: schedule.estimator().noise_shape(),
                 }
             }
             Weighting::Baseline { scale, .. } => ModelSummary {
