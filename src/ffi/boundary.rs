@@ -6,7 +6,7 @@ use std::ffi::CStr;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use super::{ContextState, sie_context, sie_status};
-use crate::error::Error;
+use crate::Error;
 use crate::memory::MemoryError;
 use std::sync::atomic::AtomicBool;
 

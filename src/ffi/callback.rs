@@ -3,8 +3,7 @@
 use core::ffi::c_void;
 
 use super::{sie_cloud, sie_trace_entry};
-use crate::TraceEntry;
-use crate::noise::{CloudRole, NoiseScales};
+use crate::{CloudRole, NoiseScales, TraceEntry};
 
 /// The non-NULL C function type behind `sie_noise_fn`.
 pub(crate) type NoiseFunction = unsafe extern "C" fn(

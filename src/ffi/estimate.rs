@@ -6,7 +6,7 @@ use super::boundary::{FfiError, boundary};
 use super::input::{check_optional_output, check_output, read_array, write_output};
 use super::results::model_of;
 use super::{sie_context, sie_model, sie_status};
-use crate::sie::estimate::estimate_inliers;
+use crate::estimate_inliers;
 
 /// Statistical Inlier Estimation on a residual matrix, without registration: P(inlier) per row.
 ///

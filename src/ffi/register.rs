@@ -14,9 +14,11 @@ use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::geometry::Rigid;
-use crate::noise::NoiseScales;
 use crate::registration::register_owned_clouds;
-use crate::{Error, Hooks, NonFinite, Point, RegistrationConfig, RegistrationResult, StopReason, TraceEntry};
+use crate::{
+    Error, Hooks, NoiseScales, NonFinite, Point, RegistrationConfig, RegistrationResult, StopReason,
+    TraceEntry,
+};
 
 /// A strided array of three coordinates per point, as passed by C.
 #[derive(Clone, Copy)]

@@ -8,7 +8,7 @@ use super::{
     ContextState, sie_context, sie_model, sie_start_kind, sie_status, sie_stop_reason, sie_summary,
     sie_trace_entry, sie_verdict,
 };
-use crate::sie::{HistogramModel, ModelWidth};
+use crate::{HistogramModel, ModelWidth};
 use crate::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
 
 fn stored_result(state: &ContextState) -> Result<&RegistrationResult, FfiError> {

@@ -10,10 +10,9 @@ use super::{
     CEnum, sie_context, sie_cost_function, sie_histogram_mode, sie_metric, sie_noise_fn, sie_noise_model,
     sie_progress_fn, sie_starts, sie_status, sie_summary,
 };
-use crate::cost::CostFunction;
-use crate::noise::NoiseModel;
-use crate::sie::{HistogramMode, NoiseShape};
-use crate::{Metric, NonFinite, RegistrationConfig, Starts};
+use crate::{
+    CostFunction, HistogramMode, Metric, NoiseModel, NoiseShape, NonFinite, RegistrationConfig, Starts,
+};
 
 /// Student-t degrees of freedom when the caller passes 0 (Kerl et al. 2013).
 const DEFAULT_STUDENT_T_DOF: f64 = 5.0;
