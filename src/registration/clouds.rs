@@ -40,19 +40,12 @@ pub fn register_clouds(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
-    let started = Instant::now();
-    config.validate()?;
-    let prepared = prepare_for(source, target, target_normals, config)?;
-    let mut result = register_to_prepared(
-        Cow::Borrowed(source),
-        &prepared,
-        init,
-        config,
-        hooks,
-        prepared.index_seconds(),
-    )?;
-    result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    let clouds = CloudPair {
+        source: Cow::Borrowed(source),
+        target: Cow::Borrowed(target),
+        target_normals: target_normals.map(Cow::Borrowed),
+    };
+    register_pair(clouds, init, config, hooks)
 }
 
 /// `register_clouds` on clouds the caller hands over (the C ABI's copies): the target's copy
@@ -66,12 +59,40 @@ pub(crate) fn register_owned_clouds(
     config: &RegistrationConfig,
     hooks: Hooks<'_>,
 ) -> Result<RegistrationResult, Error> {
+    let clouds = CloudPair {
+        source: Cow::Owned(source),
+        target: Cow::Owned(target),
+        target_normals: target_normals.map(Cow::Owned),
+    };
+    register_pair(clouds, init, config, hooks)
+}
+
+/// Two clouds as a registration gets them: borrowed from a Rust caller, or owned (the C
+/// layer's copies, each dropped as soon as the registration is done with it).
+struct CloudPair<'a> {
+    source: Cow<'a, [Point]>,
+    target: Cow<'a, [Point]>,
+    target_normals: Option<Cow<'a, [Point]>>,
+}
+
+/// `register_clouds` on borrowed or owned clouds, timed.
+fn register_pair(
+    clouds: CloudPair<'_>,
+    init: Option<&Matrix4<f64>>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
     let started = Instant::now();
     config.validate()?;
+    let CloudPair {
+        source,
+        target,
+        target_normals,
+    } = clouds;
     let prepared = prepare_for(&source, &target, target_normals.as_deref(), config)?;
     drop((target, target_normals));
     let index_seconds = prepared.index_seconds();
-    let mut result = register_to_prepared(Cow::Owned(source), &prepared, init, config, hooks, index_seconds)?;
+    let mut result = register_to_prepared(source, &prepared, init, config, hooks, index_seconds)?;
     result.times.total = started.elapsed().as_secs_f64();
     Ok(result)
 }
