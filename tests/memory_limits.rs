@@ -183,6 +183,89 @@ fn child_working_set_does_not_fit() {
     unsafe { sie_context_free(ctx) };
 }
 
+/// A source registered onto a prepared target, whose registration needs more than the budget
+/// (8 M float points: 290 MB of array and copy, then ~1.2 GB of working set, in 1 GiB), is
+/// refused before the registration starts, as `sie_context_register` is; the same context and
+/// target then register a small source. Before: the check was not made and the registration
+/// aborted the process part-way.
+#[test]
+fn a_registration_onto_a_prepared_target_that_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_registration_onto_a_target_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_registration_onto_a_prepared_target_that_does_not_fit_is_out_of_memory in a limited child"]
+fn child_registration_onto_a_target_does_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let ctx = sie_context_new();
+    let to_floats =
+        |points: &[[f64; 3]]| -> Vec<f32> { points.iter().flatten().map(|&c| c as f32).collect() };
+    let scene = sie::synthetic::room_scene(2000, 0.01, 1);
+    let target_points = to_floats(&scene.target);
+    let mut target = std::ptr::null_mut();
+    // SAFETY: a packed array of three floats per point; `target` receives one pointer.
+    let status = unsafe {
+        sie_context_prepare_target(
+            ctx,
+            target_points.as_ptr(),
+            target_points.len() / 3,
+            0,
+            null(),
+            0,
+            &mut target,
+        )
+    };
+    assert_eq!(status, sie_status::Ok, "{}", last_error(ctx));
+    let register = |source: &[f32], out: &mut [f64; 16]| {
+        // SAFETY: a packed array of three floats per point, a live target; `out` holds 16
+        // doubles.
+        unsafe {
+            sie_context_register_to(
+                ctx,
+                source.as_ptr(),
+                source.len() / 3,
+                0,
+                target,
+                null(),
+                out.as_mut_ptr(),
+            )
+        }
+    };
+    let mut out = [0.0; 16];
+    let big: Vec<f32> = (0..8_000_000usize)
+        .flat_map(|i| {
+            [
+                (i % 2000) as f32 * 0.003,
+                (i / 2000 % 2000) as f32 * 0.003,
+                (i / 4_000_000) as f32,
+            ]
+        })
+        .collect();
+    let status = register(&big, &mut out);
+    let message = last_error(ctx);
+    println!("big: {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(
+        message.contains("registration") && message.contains("GiB"),
+        "{message}"
+    );
+    assert_eq!(out, [0.0; 16]);
+    drop(big);
+    let status = register(&to_floats(&scene.source), &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, each freed once, the target after its last registration.
+    unsafe {
+        sie_target_free(target);
+        sie_context_free(ctx);
+    }
+}
+
 /// 1024 worker threads (the documented maximum) when the address space has room for a few
 /// dozen stacks: the work runs on the threads that started. Before: PANIC "failed to spawn
 /// thread".
