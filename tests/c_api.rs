@@ -1,5 +1,6 @@
-//! Builds tests/c/api_test.c against the staticlib cargo built for this crate and runs it, and
-//! checks that include/sie.h compiles as C++17.
+//! Builds the C test program (tests/c/api_test.c and api_registration_test.c) against the
+//! staticlib cargo built for this crate and runs it, and checks that include/sie.h compiles
+//! as C++17.
 //!
 //! Finding the library: the lib target has crate-type staticlib, and cargo builds every crate
 //! type of the lib before any integration test, into the directory the test executable lives in
@@ -71,6 +72,7 @@ fn c_program_exercises_every_entry_point() {
         .arg("-I")
         .arg(root.join("include"))
         .arg(root.join("tests/c/api_test.c"))
+        .arg(root.join("tests/c/api_registration_test.c"))
         .arg(static_library())
         .args(NATIVE_LIBRARIES)
         .arg("-o")

@@ -3,6 +3,8 @@ use std::fmt::Write as _;
 use std::fs;
 use std::path::Path;
 
+use crate::simulation::{CellStats, VerdictTally};
+
 /// A value for a table: scientific with two significant digits, "–" for none.
 pub fn sci(v: f64) -> String {
     if v.is_finite() {
@@ -101,4 +103,37 @@ pub fn machine() -> String {
         .map(|s| s.trim().to_string())
         .unwrap_or_else(|| "rustc (unknown version)".into());
     format!("{cpu}, {cores} cores (shared with other work), {rustc}")
+}
+
+/// One line on how SIE's quality verdict matched its outcomes over `runs` runs.
+pub fn verdict_line(what: &str, t: &VerdictTally) -> String {
+    let right = t.right_good + t.right_not_good;
+    let wrong = t.wrong_good + t.wrong_not_good;
+    let rate = |n: usize, of: usize| {
+        if of == 0 {
+            "–".to_string()
+        } else {
+            format!("{:.1} %", 100.0 * n as f64 / of as f64)
+        }
+    };
+    format!(
+        "SIE's quality verdict on {what}: {right} right runs, {} called GOOD, {} not (false \"bad\": {}); \
+         {wrong} wrong runs, {} called GOOD (false \"good\": {}), {} of them more than 5× the failure bound off.\n",
+        t.right_good,
+        t.right_not_good,
+        rate(t.right_not_good, right),
+        t.wrong_good,
+        rate(t.wrong_good, wrong),
+        t.far_wrong_good
+    )
+}
+
+/// Cell text: failure percentage and mean error of the non-failures.
+pub fn cell_text(s: &CellStats) -> String {
+    format!("{:.0} · {}", 100.0 * s.failure_rate(), sci(s.mean_error))
+}
+
+pub fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
 }

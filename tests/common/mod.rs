@@ -6,6 +6,10 @@ use nalgebra::Matrix4;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::{Hooks, Point, RegistrationConfig, RegistrationResult, register_clouds};
 
+// The `sie` binary's helpers: its tests only exist with the CLI.
+#[cfg(feature = "cli")]
+pub mod cli;
+
 /// The real-scan folder: `$SIE_DATA_DIR`, by default `<crate>/../shared/data`. Returns `None`
 /// (the caller skips) only outside CI; under CI (env `CI` set) a missing folder is a failure,
 /// so a wrong path cannot turn these tests into no-ops.

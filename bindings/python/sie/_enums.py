@@ -1,0 +1,105 @@
+"""The library's enums (sie.h), as IntEnums that print as their names."""
+
+from __future__ import annotations
+
+import enum
+from typing import Any
+
+
+class _NamedEnum(enum.IntEnum):
+    """An IntEnum that prints as its name (StopReason.CONVERGED), as on every Python version."""
+
+    def __str__(self) -> str:
+        return f"{type(self).__name__}.{self.name}"
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self), spec)
+
+
+class Status(_NamedEnum):
+    OK = 0
+    NULL_ARGUMENT = 1
+    INVALID_ARGUMENT = 2
+    NON_FINITE_INPUT = 3
+    TOO_FEW_POINTS = 4
+    CALLBACK_FAILED = 5
+    NO_RESULT = 6
+    BUFFER_TOO_SMALL = 7
+    BUSY = 8
+    CANCELLED = 9
+    OUT_OF_MEMORY = 10
+    PANIC = 100
+
+
+class CostFunction(_NamedEnum):
+    SIE = 0
+    L2 = 1
+    TRUNCATED_L2 = 2
+    LP = 3
+    STUDENT_T = 4
+    HUBER = 5
+    CAUCHY = 6
+    GEMAN_MCCLURE = 7
+    TUKEY = 8
+
+
+class Metric(_NamedEnum):
+    POINT_TO_POINT = 0
+    POINT_TO_PLANE = 1
+
+
+class NoiseModel(_NamedEnum):
+    CONSTANT = 0
+    QUADRATIC_DEPTH = 1
+
+
+class HistogramMode(_NamedEnum):
+    POOLED = 0
+    PER_COLUMN = 1
+
+
+class StopReason(_NamedEnum):
+    NONE = 0
+    CONVERGED = 1
+    ITERATION_LIMIT = 2
+    DEGENERATE = 3
+    CANCELLED = 4
+
+
+class Starts(_NamedEnum):
+    """Where SIE starts (Context.set_starts / starts=...)."""
+
+    AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
+    INITIAL_GUESS = 1  # one run from the initial guess (the paper's method)
+
+
+class Verdict(_NamedEnum):
+    """How far to trust a registration (Summary.verdict)."""
+
+    NONE = 0  # no result
+    GOOD = 1  # the evidence supports the pose: use it
+    DOUBTFUL = 2  # registered, but some evidence is weak: check it, or retry from another guess
+    UNSUPPORTED = 3  # no inlier cluster stands out from the background: reject the pose
+
+
+class StartKind(_NamedEnum):
+    """Which start the returned transform came from (Summary.start)."""
+
+    INITIAL_GUESS = 0
+    NARROW_BETA = 1
+    SCALE_FREE_LEAD = 2
+    HYPOTHESIS = 3
+    WARM_START = 4
+
+
+class Cloud(_NamedEnum):
+    SOURCE = 0
+    TARGET = 1
+
+
+def _enum_or_int(kind: Any, value: int) -> Any:
+    try:
+        return kind(value)
+    except ValueError:
+        return int(value)
+
