@@ -18,7 +18,8 @@ are refused with ValueError / TypeError.
 Failures raise SieError with the library's status and message. A cancelled registration
 (Context.cancel(), or a progress callback returning False) is not a failure: it returns the
 transform reached, with summary.stop_reason == StopReason.CANCELLED. A Context is used by one
-thread at a time (except cancel(), callable from any thread); distinct Contexts are independent.
+thread at a time (except cancel() and close(), callable from any thread and from its callbacks:
+a close() during a call takes effect when that call returns); distinct Contexts are independent.
 The library is called through ctypes.CDLL, which releases the GIL during each call: Contexts in
 different threads register in parallel.
 """

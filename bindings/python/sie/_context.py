@@ -12,6 +12,7 @@ from . import _native
 from ._arrays import CloudLike, _cloud_dtype, _double_pointer, _open3d_cloud, _points, _real_array, _transform_in
 from ._enums import Cloud, CostFunction, HistogramMode, Metric, NoiseModel, Starts, Status, _enum_or_int
 from ._enums import StartKind, StopReason, Verdict
+from ._handle import _Handle
 from ._library import SieError, _lib
 from ._results import Histogram, InlierEstimate, Registration, Summary, TraceEntry, _model, _trace_entry
 
@@ -31,35 +32,39 @@ class Target:
 
     def __init__(self, points: CloudLike, normals: Optional[npt.ArrayLike] = None,
                  normal_neighbours: int = 10, skip_non_finite: bool = False) -> None:
-        self._handle = ctypes.c_void_p(None)
         with Context(normal_neighbours=normal_neighbours, skip_non_finite=skip_non_finite) as context:
-            self._handle = context._prepare(points, normals)
+            self._h = _Handle(context._prepare(points, normals), _lib.sie_target_free, "target")
 
     @classmethod
     def _adopt(cls, handle: ctypes.c_void_p) -> "Target":
         target = cls.__new__(cls)
-        target._handle = handle
+        target._h = _Handle(handle, _lib.sie_target_free, "target")
         return target
 
     def __len__(self) -> int:
-        """Points the target was made from."""
-        return int(_lib.sie_target_point_count(self._handle))
+        """Points the target was made from (0 once closed)."""
+        try:
+            with self._h.use() as handle:
+                return int(_lib.sie_target_point_count(handle))
+        except SieError:
+            return 0
 
     def estimate_normals(self, threads: int = 0) -> None:
         """Estimates every normal not estimated yet (threads: 0 = one per core), so that no later
         align() pays for them. Results are the same either way."""
-        if not self._handle.value:
-            raise SieError(Status.NULL_ARGUMENT, "the target is closed")
-        status = _lib.sie_target_estimate_normals(self._handle, int(threads))
+        with self._h.use() as handle:
+            status = _lib.sie_target_estimate_normals(handle, int(threads))
         if status != Status.OK:
             raise SieError(status, f"threads = {threads}; at most 1024")
 
     def close(self) -> None:
-        """Frees the target; no align() may be using it."""
-        handle = getattr(self, "_handle", None)
-        if handle is not None and handle.value:
-            _lib.sie_target_free(handle)
-            self._handle = ctypes.c_void_p(None)
+        """Frees the target. Never waits and never fails: while an align() onto it or
+        estimate_normals() runs (close() called from a progress or noise callback, or from
+        another thread), the target is freed when the last of them returns. Further uses raise
+        SieError (NULL_ARGUMENT, "the target is closed"). Idempotent."""
+        handle = getattr(self, "_h", None)
+        if handle is not None:
+            handle.close()
 
     def __enter__(self) -> "Target":
         return self
@@ -82,10 +87,8 @@ class Context:
         handle = _lib.sie_context_new()
         if not handle:
             raise MemoryError("sie_context_new returned NULL")
-        self._handle = ctypes.c_void_p(handle)
-        # The ctypes callback objects the library points at, and what a callback raised.
-        self._noise_function: Optional[Any] = None
-        self._progress_function: Optional[Any] = None
+        self._h = _Handle(handle, _lib.sie_context_free, "context")
+        # What a callback raised, re-raised by align*().
         self._callback_error: Optional[BaseException] = None
         for name, value in settings.items():
             if name == "cost":
@@ -103,21 +106,23 @@ class Context:
     # ---- lifetime ----------------------------------------------------------------------
 
     def close(self) -> None:
-        """Frees the context (also done by the garbage collector); further calls fail."""
-        handle = getattr(self, "_handle", None)
-        if handle is not None and handle.value:
-            _lib.sie_context_free(handle)
-            self._handle = ctypes.c_void_p(None)
-        # Only after the library no longer points at them.
-        self._noise_function = None
-        self._progress_function = None
+        """Frees the context (also done by the garbage collector). Never waits and never fails:
+        called while an align*() or another call on this context runs (from its progress or
+        noise callback, or from another thread), it only marks the context closed, and the
+        running call finishes normally (align*() returns its result) and then frees it; call
+        cancel() first to stop that call sooner. Every later call raises SieError
+        (NULL_ARGUMENT, "the context is closed"). Idempotent."""
+        handle = getattr(self, "_h", None)
+        if handle is not None:
+            handle.close()
 
     def cancel(self) -> None:
         """Asks the running registration to stop after its current iteration (or, if none runs,
-        the next one after its first). May be called from any thread while align*() runs."""
-        handle = getattr(self, "_handle", None)
-        if handle is not None and handle.value:
-            _lib.sie_context_cancel(handle)
+        the next one after its first). May be called from any thread while align*() runs, also
+        after a close() that waits for that align*()."""
+        handle = getattr(self, "_h", None)
+        if handle is not None:
+            handle.cancel(_lib.sie_context_cancel)
 
     def __enter__(self) -> "Context":
         return self
@@ -130,33 +135,39 @@ class Context:
 
     # ---- errors ------------------------------------------------------------------------
 
-    def _check(self, status: int) -> None:
+    @staticmethod
+    def _check(handle: ctypes.c_void_p, status: int) -> None:
         if status != Status.OK:
-            raise SieError(status, _lib.sie_context_last_error(self._handle).decode(errors="replace"))
+            raise SieError(status, _lib.sie_context_last_error(handle).decode(errors="replace"))
 
-    def _run(self, status: int) -> None:
+    def _call(self, function: Any, *args: Any) -> None:
+        """function(context, *args) on the open context; a failure raises SieError."""
+        with self._h.use() as handle:
+            self._check(handle, function(handle, *args))
+
+    def _run(self, handle: ctypes.c_void_p, status: int) -> None:
         """_check for registrations: re-raises what a callback raised (it made the library return
         CALLBACK_FAILED or CANCELLED); a plain cancellation is a result, not an error."""
         error, self._callback_error = self._callback_error, None
         if error is not None and status in (Status.CALLBACK_FAILED, Status.CANCELLED):
             raise error
         if status != Status.CANCELLED:
-            self._check(status)
+            self._check(handle, status)
 
     # ---- settings ----------------------------------------------------------------------
 
     def set_cost_function(self, cost: CostFunction, parameter: float = 0.0) -> "Context":
-        self._check(_lib.sie_context_set_cost_function(self._handle, int(cost), float(parameter)))
+        self._call(_lib.sie_context_set_cost_function, int(cost), float(parameter))
         return self
 
     def set_metric(self, metric: Metric) -> "Context":
-        self._check(_lib.sie_context_set_metric(self._handle, int(metric)))
+        self._call(_lib.sie_context_set_metric, int(metric))
         return self
 
     def set_starts(self, starts: Starts) -> "Context":
         """Starts.AUTOMATIC (the default) runs SIE from several starts and keeps the most
         significant result; Starts.INITIAL_GUESS runs once from the initial guess."""
-        self._check(_lib.sie_context_set_starts(self._handle, int(starts)))
+        self._call(_lib.sie_context_set_starts, int(starts))
         return self
 
     def set_warm_start(self, previous: Optional[Summary]) -> "Context":
@@ -165,7 +176,7 @@ class Context:
         guesses; falls back to the full search by itself when the guess was bad
         (Summary.start is StartKind.WARM_START when the warm run was kept)."""
         if previous is None:
-            self._check(_lib.sie_context_set_warm_start(self._handle, None))
+            self._call(_lib.sie_context_set_warm_start, None)
             return self
         raw = _native.sie_summary()
         raw.sigma[:] = list(previous.sigma)
@@ -174,72 +185,77 @@ class Context:
         raw.noise_shape = previous.noise_shape
         raw.inlier_fraction = previous.inlier_fraction
         raw.histogram_count = previous.histogram_count
-        self._check(_lib.sie_context_set_warm_start(self._handle, ctypes.byref(raw)))
+        self._call(_lib.sie_context_set_warm_start, ctypes.byref(raw))
         return self
 
     def set_max_iterations(self, max_iterations: int) -> "Context":
         """Caps the updates of each start (Summary.iterations counts those of all starts)."""
-        self._check(_lib.sie_context_set_max_iterations(self._handle, int(max_iterations)))
+        self._call(_lib.sie_context_set_max_iterations, int(max_iterations))
         return self
 
     def set_convergence(self, translation: float, rotation_radians: float) -> "Context":
-        self._check(_lib.sie_context_set_convergence(self._handle, float(translation), float(rotation_radians)))
+        self._call(_lib.sie_context_set_convergence, float(translation), float(rotation_radians))
         return self
 
     def set_noise_model(self, model: NoiseModel) -> "Context":
-        self._check(_lib.sie_context_set_noise_model(self._handle, int(model)))
+        self._call(_lib.sie_context_set_noise_model, int(model))
         return self
 
     def set_noise_shape(self, p: float) -> "Context":
-        self._check(_lib.sie_context_set_noise_shape(self._handle, float(p)))
+        self._call(_lib.sie_context_set_noise_shape, float(p))
         return self
 
     def set_histogram_mode(self, mode: HistogramMode) -> "Context":
-        self._check(_lib.sie_context_set_histogram_mode(self._handle, int(mode)))
+        self._call(_lib.sie_context_set_histogram_mode, int(mode))
         return self
 
     def set_regularizer(self, initial_beta: float, shrink: float) -> "Context":
-        self._check(_lib.sie_context_set_regularizer(self._handle, float(initial_beta), float(shrink)))
+        self._call(_lib.sie_context_set_regularizer, float(initial_beta), float(shrink))
         return self
 
     def set_max_correspondences(self, max_correspondences: int) -> "Context":
-        self._check(_lib.sie_context_set_max_correspondences(self._handle, int(max_correspondences)))
+        self._call(_lib.sie_context_set_max_correspondences, int(max_correspondences))
         return self
 
     def set_normal_neighbours(self, neighbours: int) -> "Context":
-        self._check(_lib.sie_context_set_normal_neighbours(self._handle, int(neighbours)))
+        self._call(_lib.sie_context_set_normal_neighbours, int(neighbours))
         return self
 
     def set_threads(self, threads: int) -> "Context":
-        self._check(_lib.sie_context_set_threads(self._handle, int(threads)))
+        self._call(_lib.sie_context_set_threads, int(threads))
         return self
 
     def set_seed(self, seed: int) -> "Context":
-        self._check(_lib.sie_context_set_seed(self._handle, int(seed)))
+        self._call(_lib.sie_context_set_seed, int(seed))
         return self
 
     def set_trace(self, enabled: bool) -> "Context":
-        self._check(_lib.sie_context_set_trace(self._handle, bool(enabled)))
+        self._call(_lib.sie_context_set_trace, bool(enabled))
         return self
 
     def set_skip_non_finite(self, enabled: bool) -> "Context":
         """Drop points with NaN/inf coordinates instead of failing; they get probability 0 and
         correspondence -1."""
-        self._check(_lib.sie_context_set_skip_non_finite(self._handle, bool(enabled)))
+        self._call(_lib.sie_context_set_skip_non_finite, bool(enabled))
         return self
 
     def set_skip_origin(self, enabled: bool) -> "Context":
         """Drop points at exactly 0 0 0 (depth sensors' invalid pixels) like non-finite ones."""
-        self._check(_lib.sie_context_set_skip_origin(self._handle, bool(enabled)))
+        self._call(_lib.sie_context_set_skip_origin, bool(enabled))
         return self
+
+    def _set_callback(self, name: str, setter: Any, callback: Any) -> None:
+        with self._h.use() as handle:
+            self._check(handle, setter(handle, callback, None))
+            # The library points at it now: kept alive until the context is freed or it is replaced.
+            self._h.keep[name] = callback
 
     def set_progress_callback(self, function: Optional[ProgressCallback]) -> "Context":
         """function(entry: TraceEntry) after every iteration, on the calling thread; returning
         False cancels the registration (None or True continue). Whatever it raises cancels it and
-        is re-raised by align*(). None removes it."""
+        is re-raised by align*(). None removes it. It may call close() (see there)."""
         if function is None:
-            self._check(_lib.sie_context_set_progress_callback(self._handle, _native.PROGRESS_FN(), None))
-            self._progress_function = None
+            self._set_callback("progress", _lib.sie_context_set_progress_callback, _native.PROGRESS_FN())
             return self
 
         def trampoline(_user_data: Any, entry: Any) -> int:
@@ -249,9 +265,7 @@ class Context:
                 self._callback_error = error
                 return 1
 
-        callback = _native.PROGRESS_FN(trampoline)
-        self._check(_lib.sie_context_set_progress_callback(self._handle, callback, None))
-        self._progress_function = callback
+        self._set_callback("progress", _lib.sie_context_set_progress_callback, _native.PROGRESS_FN(trampoline))
         return self
 
     def set_noise_callback(self, function: Optional[NoiseCallback]) -> "Context":
@@ -264,8 +278,7 @@ class Context:
         points, so Summary.sigma is in multiples of the returned values (about 1 when they are
         the sensor's noise in input units), not in input units; rmse stays in input units."""
         if function is None:
-            self._check(_lib.sie_context_set_noise_callback(self._handle, _native.NOISE_FN(), None))
-            self._noise_function = None
+            self._set_callback("noise", _lib.sie_context_set_noise_callback, _native.NOISE_FN())
             return self
 
         def trampoline(_user_data: Any, cloud: int, xyz: Any, n: int, out_sigma: Any) -> int:
@@ -283,9 +296,7 @@ class Context:
                 self._callback_error = error
                 return 1
 
-        callback = _native.NOISE_FN(trampoline)
-        self._check(_lib.sie_context_set_noise_callback(self._handle, callback, None))
-        self._noise_function = callback  # the library holds a pointer to it: keep it alive
+        self._set_callback("noise", _lib.sie_context_set_noise_callback, _native.NOISE_FN(trampoline))
         return self
 
     # ---- registration ------------------------------------------------------------------
@@ -307,11 +318,11 @@ class Context:
         n = None if normals is None else _points(normals, "normals", dtype)
         if n is not None and n.count != p.count:
             raise ValueError(f"normals has {n.count} rows for {p.count} points")
-        handle = ctypes.c_void_p(None)
+        target = ctypes.c_void_p(None)
         prepare = _lib.sie_context_prepare_target if dtype == np.float32 else _lib.sie_context_prepare_target_d
-        self._check(prepare(self._handle, p.pointer, p.count, p.stride, None if n is None else n.pointer,
-                            0 if n is None else n.stride, ctypes.byref(handle)))
-        return handle
+        self._call(prepare, p.pointer, p.count, p.stride, None if n is None else n.pointer,
+                   0 if n is None else n.stride, ctypes.byref(target))
+        return target
 
     def align(self, source: CloudLike, target: Union[CloudLike, Target], init: Optional[npt.ArrayLike] = None,
               target_normals: Optional[npt.ArrayLike] = None) -> Registration:
@@ -326,16 +337,16 @@ class Context:
         if isinstance(target, Target):
             if target_normals is not None:
                 raise ValueError("a Target carries its normals: pass them to prepare_target instead")
-            if not target._handle.value:
-                raise SieError(Status.NULL_ARGUMENT, "the target is closed")
             dtype = _cloud_dtype(source)
             s = _points(source, "source", dtype)
             transform_in = _transform_in(init)
             out = np.empty((4, 4), dtype=np.float64)
             register_to = _lib.sie_context_register_to if dtype == np.float32 else _lib.sie_context_register_to_d
-            self._run(register_to(self._handle, s.pointer, s.count, s.stride, target._handle,
-                                  _double_pointer(transform_in), _double_pointer(out)))
-            return self._registration(out)
+            # Both stay allocated until the call returns, whoever closes them meanwhile.
+            with self._h.use() as handle, target._h.use() as prepared:
+                self._run(handle, register_to(handle, s.pointer, s.count, s.stride, prepared,
+                                              _double_pointer(transform_in), _double_pointer(out)))
+                return self._registration(handle, out)
         opened = _open3d_cloud(target)
         if opened is not None:
             target = opened[0]
@@ -349,21 +360,24 @@ class Context:
             n = _points(target_normals, "target_normals", np.float32)
             if n.count != t.count:
                 raise ValueError(f"target_normals has {n.count} rows for {t.count} target points")
-            status = _lib.sie_context_register_with_normals(
-                self._handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride, n.pointer, n.stride,
-                _double_pointer(transform_in), _double_pointer(out),
-            )
-        else:
-            dtype = _cloud_dtype(source, target)
-            s = _points(source, "source", dtype)
-            t = _points(target, "target", dtype)
-            register = _lib.sie_context_register if dtype == np.float32 else _lib.sie_context_register_d
+            with self._h.use() as handle:
+                status = _lib.sie_context_register_with_normals(
+                    handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride, n.pointer, n.stride,
+                    _double_pointer(transform_in), _double_pointer(out),
+                )
+                self._run(handle, status)
+                return self._registration(handle, out)
+        dtype = _cloud_dtype(source, target)
+        s = _points(source, "source", dtype)
+        t = _points(target, "target", dtype)
+        register = _lib.sie_context_register if dtype == np.float32 else _lib.sie_context_register_d
+        with self._h.use() as handle:
             status = register(
-                self._handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride,
+                handle, s.pointer, s.count, s.stride, t.pointer, t.count, t.stride,
                 _double_pointer(transform_in), _double_pointer(out),
             )
-        self._run(status)
-        return self._registration(out)
+            self._run(handle, status)
+            return self._registration(handle, out)
 
     def align_correspondences(self, source: npt.ArrayLike, target: npt.ArrayLike,
                               init: Optional[npt.ArrayLike] = None) -> Registration:
@@ -380,21 +394,31 @@ class Context:
             if dtype == np.float32
             else _lib.sie_context_register_correspondences_d
         )
-        status = register(
-            self._handle, s.pointer, s.stride, t.pointer, t.stride, s.count, _double_pointer(transform_in),
-            _double_pointer(out),
-        )
-        self._run(status)
-        return self._registration(out)
+        with self._h.use() as handle:
+            status = register(
+                handle, s.pointer, s.stride, t.pointer, t.stride, s.count, _double_pointer(transform_in),
+                _double_pointer(out),
+            )
+            self._run(handle, status)
+            return self._registration(handle, out)
 
-    def _registration(self, transform: np.ndarray) -> Registration:
-        return Registration(transform, self.summary(), self.inlier_probabilities(), self.correspondences())
+    def _registration(self, handle: ctypes.c_void_p, transform: np.ndarray) -> Registration:
+        # Through `handle`, not the public getters: a close() from the callback refuses new calls.
+        return Registration(
+            transform, self._summary(handle),
+            self._array(handle, _lib.sie_context_get_inlier_probabilities, np.float64, ctypes.c_double),
+            self._array(handle, _lib.sie_context_get_correspondences, np.int64, ctypes.c_int64),
+        )
 
     # ---- results of the last successful registration -----------------------------------
 
     def summary(self) -> Summary:
+        with self._h.use() as handle:
+            return self._summary(handle)
+
+    def _summary(self, handle: ctypes.c_void_p) -> Summary:
         raw = _native.sie_summary()
-        self._check(_lib.sie_context_get_summary(self._handle, ctypes.byref(raw)))
+        self._check(handle, _lib.sie_context_get_summary(handle, ctypes.byref(raw)))
         return Summary(
             tuple(raw.sigma), tuple(raw.beta), raw.penalty, raw.noise_shape, raw.inlier_fraction, raw.rmse,
             raw.init_correction, int(raw.source_count), int(raw.correspondence_count), int(raw.iterations),
@@ -404,35 +428,39 @@ class Context:
             int(raw.hypotheses), raw.runner_up_significance,
         )
 
-    def _array(self, getter: Any, dtype: npt.DTypeLike, ctype: Any) -> np.ndarray:
+    def _array(self, handle: ctypes.c_void_p, getter: Any, dtype: npt.DTypeLike, ctype: Any) -> np.ndarray:
         length = ctypes.c_size_t(0)
-        self._check(getter(self._handle, None, 0, ctypes.byref(length)))
+        self._check(handle, getter(handle, None, 0, ctypes.byref(length)))
         values = np.empty(length.value, dtype=dtype)
-        self._check(getter(self._handle, values.ctypes.data_as(ctypes.POINTER(ctype)), values.size,
-                           ctypes.byref(length)))
+        self._check(handle, getter(handle, values.ctypes.data_as(ctypes.POINTER(ctype)), values.size,
+                                   ctypes.byref(length)))
         return values[: length.value]
 
     def inlier_probabilities(self) -> np.ndarray:
-        return self._array(_lib.sie_context_get_inlier_probabilities, np.float64, ctypes.c_double)
+        with self._h.use() as handle:
+            return self._array(handle, _lib.sie_context_get_inlier_probabilities, np.float64, ctypes.c_double)
 
     def correspondences(self) -> np.ndarray:
-        return self._array(_lib.sie_context_get_correspondences, np.int64, ctypes.c_int64)
+        with self._h.use() as handle:
+            return self._array(handle, _lib.sie_context_get_correspondences, np.int64, ctypes.c_int64)
 
     def trace(self) -> List[TraceEntry]:
         length = ctypes.c_size_t(0)
-        self._check(_lib.sie_context_get_trace(self._handle, None, 0, ctypes.byref(length)))
-        entries = (_native.sie_trace_entry * length.value)()
-        self._check(_lib.sie_context_get_trace(self._handle, entries, length.value, ctypes.byref(length)))
+        with self._h.use() as handle:
+            self._check(handle, _lib.sie_context_get_trace(handle, None, 0, ctypes.byref(length)))
+            entries = (_native.sie_trace_entry * length.value)()
+            self._check(handle, _lib.sie_context_get_trace(handle, entries, length.value, ctypes.byref(length)))
         return [_trace_entry(e) for e in entries[: length.value]]
 
     def histogram(self, index: int = 0) -> Histogram:
         model = _native.sie_model()
-        self._check(_lib.sie_context_get_histogram(self._handle, index, ctypes.byref(model), None, None, None,
-                                                   None, 0))
-        arrays = [np.empty(int(model.bins), dtype=np.float64) for _ in range(4)]
-        pointers = [_double_pointer(a) for a in arrays]
-        self._check(_lib.sie_context_get_histogram(self._handle, index, ctypes.byref(model), *pointers,
-                                                   int(model.bins)))
+        with self._h.use() as handle:
+            self._check(handle, _lib.sie_context_get_histogram(handle, index, ctypes.byref(model), None, None,
+                                                               None, None, 0))
+            arrays = [np.empty(int(model.bins), dtype=np.float64) for _ in range(4)]
+            pointers = [_double_pointer(a) for a in arrays]
+            self._check(handle, _lib.sie_context_get_histogram(handle, index, ctypes.byref(model), *pointers,
+                                                               int(model.bins)))
         return Histogram(_model(model), *arrays)
 
     # ---- the estimator alone -----------------------------------------------------------
@@ -455,10 +483,10 @@ class Context:
         probabilities = np.empty(rows, dtype=np.float64)
         models = (_native.sie_model * max(cols, 1))()
         count = ctypes.c_size_t(0)
-        self._check(_lib.sie_estimate_inliers(
-            self._handle, _double_pointer(matrix), rows, cols, _double_pointer(scales), float(beta),
+        self._call(
+            _lib.sie_estimate_inliers, _double_pointer(matrix), rows, cols, _double_pointer(scales), float(beta),
             _double_pointer(probabilities), models, len(models), ctypes.byref(count),
-        ))
+        )
         return InlierEstimate(probabilities, [_model(m) for m in models[: count.value]])
 
 
