@@ -10,7 +10,7 @@ import numpy.typing as npt
 
 from . import _native
 from ._arrays import CloudLike, _cloud_dtype, _double_pointer, _open3d_cloud, _points, _real_array, _transform_in
-from ._enums import Cloud, CostFunction, HistogramMode, Metric, NoiseModel, Starts, Status, _enum_or_int
+from ._enums import Cloud, CostFunction, HistogramMode, Metric, NoiseModel, Starts, Status, _enum_arg, _enum_or_int
 from ._enums import StartKind, StopReason, Verdict
 from ._handle import _Handle
 from ._library import SieError, _lib
@@ -81,7 +81,10 @@ class Context:
 
     Settings may be given as keyword arguments, e.g. Context(metric=Metric.POINT_TO_POINT,
     max_iterations=50); each maps to the set_<name> method. cost takes CostFunction or
-    (CostFunction, parameter)."""
+    (CostFunction, parameter). Wherever an enum is taken (cost, metric, starts, noise_model,
+    histogram_mode) its name works too, in any case and with - for _ as the CLI spells it:
+    Context(metric="point_to_point", cost=("huber", 0.1)); an unknown name is a ValueError
+    that lists the valid ones."""
 
     def __init__(self, **settings: Any) -> None:
         handle = _lib.sie_context_new()
@@ -156,18 +159,18 @@ class Context:
 
     # ---- settings ----------------------------------------------------------------------
 
-    def set_cost_function(self, cost: CostFunction, parameter: float = 0.0) -> "Context":
-        self._call(_lib.sie_context_set_cost_function, int(cost), float(parameter))
+    def set_cost_function(self, cost: Union[CostFunction, str, int], parameter: float = 0.0) -> "Context":
+        self._call(_lib.sie_context_set_cost_function, _enum_arg(CostFunction, cost, "cost"), float(parameter))
         return self
 
-    def set_metric(self, metric: Metric) -> "Context":
-        self._call(_lib.sie_context_set_metric, int(metric))
+    def set_metric(self, metric: Union[Metric, str, int]) -> "Context":
+        self._call(_lib.sie_context_set_metric, _enum_arg(Metric, metric, "metric"))
         return self
 
-    def set_starts(self, starts: Starts) -> "Context":
+    def set_starts(self, starts: Union[Starts, str, int]) -> "Context":
         """Starts.AUTOMATIC (the default) runs SIE from several starts and keeps the most
         significant result; Starts.INITIAL_GUESS runs once from the initial guess."""
-        self._call(_lib.sie_context_set_starts, int(starts))
+        self._call(_lib.sie_context_set_starts, _enum_arg(Starts, starts, "starts"))
         return self
 
     def set_warm_start(self, previous: Optional[Summary]) -> "Context":
@@ -197,16 +200,16 @@ class Context:
         self._call(_lib.sie_context_set_convergence, float(translation), float(rotation_radians))
         return self
 
-    def set_noise_model(self, model: NoiseModel) -> "Context":
-        self._call(_lib.sie_context_set_noise_model, int(model))
+    def set_noise_model(self, model: Union[NoiseModel, str, int]) -> "Context":
+        self._call(_lib.sie_context_set_noise_model, _enum_arg(NoiseModel, model, "noise_model"))
         return self
 
     def set_noise_shape(self, p: float) -> "Context":
         self._call(_lib.sie_context_set_noise_shape, float(p))
         return self
 
-    def set_histogram_mode(self, mode: HistogramMode) -> "Context":
-        self._call(_lib.sie_context_set_histogram_mode, int(mode))
+    def set_histogram_mode(self, mode: Union[HistogramMode, str, int]) -> "Context":
+        self._call(_lib.sie_context_set_histogram_mode, _enum_arg(HistogramMode, mode, "histogram_mode"))
         return self
 
     def set_regularizer(self, initial_beta: float, shrink: float) -> "Context":

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import enum
-from typing import Any
+import operator
+from typing import Any, Type
 
 
 class _NamedEnum(enum.IntEnum):
@@ -103,3 +104,25 @@ def _enum_or_int(kind: Any, value: int) -> Any:
     except ValueError:
         return int(value)
 
+
+
+def _enum_arg(kind: Type[enum.IntEnum], value: Any, name: str) -> int:
+    """The C value of an enum argument given as a member of `kind`, its name as a string (any
+    case, - for _: "point_to_point", "POINT-TO-POINT") or an integer (passed on as it is: the
+    library refuses unknown values)."""
+    if isinstance(value, kind):
+        return int(value)
+    valid = ", ".join(repr(member.name.lower()) for member in kind)
+    if isinstance(value, str):
+        key = value.strip().upper().replace("-", "_")
+        if key in kind.__members__:
+            return int(kind[key])
+        raise ValueError(f"{name} {value!r} is not a {kind.__name__}; valid names: {valid}")
+    if isinstance(value, (enum.Enum, bool)):
+        # Metric.POINT_TO_PLANE == 1 == CostFunction.L2: another enum is a mistake, not a value.
+        raise TypeError(f"{name} must be a {kind.__name__} or its name ({valid}), got {value}")
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be a {kind.__name__} or its name ({valid}), "
+                        f"got {type(value).__name__} {value!r}") from None

@@ -15,7 +15,11 @@ class SieError(Exception):
         self.status = _enum_or_int(Status, status)
         self.message = message
         text = _lib.sie_status_str(int(status)).decode()
-        super().__init__(f"{text}: {message}" if message else text)
+        # Some library messages already start with the status ("no result: no registration ...").
+        if not message or message == text or message.startswith(f"{text}:"):
+            super().__init__(message or text)
+        else:
+            super().__init__(f"{text}: {message}")
 
 
 def library_version() -> str:
