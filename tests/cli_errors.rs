@@ -35,6 +35,9 @@ fn bad_files_give_one_line_and_exit_code_2() {
         ("cloud.obj", b"v 1 2 3\n".to_vec(), "unknown point-cloud extension"),
         ("more.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 0\n".to_vec(), "2 more lines"),
         ("key.pcd", format!("{}0 0 0\n1 0 0\n0 1 0\n", pcd_header(3, "ascii").replace("WIDTH", "WIDTH 3\nſIZE 4 4 4\nWIDTH")).into_bytes(), "not ASCII"),
+        // Both were read without a word (pcd-rs takes COUNT 0 as 1 and ignores WIDTH × HEIGHT).
+        ("count0.pcd", format!("{}0 0 0\n1 0 0\n0 1 0\n", pcd_header(3, "ascii").replace("COUNT 1 1 1", "COUNT 1 0 1")).into_bytes(), "COUNT of field y is 0"),
+        ("size.pcd", format!("{}0 0 0\n1 0 0\n0 1 0\n", pcd_header(3, "ascii").replace("HEIGHT 1", "HEIGHT 9223372036854775808")).into_bytes(), "WIDTH 3 × HEIGHT 9223372036854775808"),
     ];
     let mut runs: Vec<(String, Vec<&str>, String)> = Vec::new();
     for (name, bytes, expected) in &cases {

@@ -176,11 +176,16 @@ impl PcdLayout {
 /// Rejects the header sizes on which pcd-rs 0.13 would panic or allocate unboundedly: record
 /// sizes that overflow, binary_compressed blocks whose sizes disagree with the header (its
 /// column transposition indexes out of bounds), and header keys that are not ASCII (pcd-rs
-/// upper-cases keys by Unicode rules, so `ſIZE` would reach it as SIZE unchecked here).
+/// upper-cases keys by Unicode rules, so `ſIZE` would reach it as SIZE unchecked here). Also
+/// the headers pcd-rs reads without a word though they are wrong: a field with `COUNT 0` (it
+/// takes 1) and a WIDTH × HEIGHT beyond 2^64 points (it ignores both).
 /// Returns the layout when the header gives it; anything else is left to pcd-rs.
 fn check_pcd_layout(bytes: &[u8]) -> Result<Option<PcdLayout>, String> {
+    let mut fields: Vec<String> = Vec::new();
     let mut sizes: Option<Vec<u64>> = None;
     let mut counts: Option<Vec<u64>> = None;
+    let mut width: Option<u64> = None;
+    let mut height: Option<u64> = None;
     let mut declared_points: Option<u64> = None;
     let mut rest = bytes;
     let mut line_number = 0;
@@ -209,15 +214,34 @@ fn check_pcd_layout(bytes: &[u8]) -> Result<Option<PcdLayout>, String> {
                 .collect::<Result<Vec<_>, _>>()
                 .ok()
         };
+        let first = || numbers().and_then(|v| v.first().copied());
         match key.to_ascii_uppercase().as_str() {
+            "FIELDS" | "COLUMNS" => fields = values.iter().map(|v| v.to_string()).collect(),
             "SIZE" => sizes = numbers(),
             "COUNT" => counts = numbers(),
-            "POINTS" => declared_points = numbers().and_then(|v| v.first().copied()),
+            "WIDTH" => width = first(),
+            "HEIGHT" => height = first(),
+            "POINTS" => declared_points = first(),
             "DATA" => break values.first().unwrap_or(&"").to_string(),
             _ => {}
         }
     };
     let data_start = bytes.len() - rest.len();
+    if let Some(zero) = counts.iter().flatten().position(|&count| count == 0) {
+        let field = fields
+            .get(zero)
+            .map_or_else(|| (zero + 1).to_string(), Clone::clone);
+        return Err(format!(
+            "PCD header: COUNT of field {field} is 0; each field holds at least 1 value"
+        ));
+    }
+    if let (Some(width), Some(height)) = (width, height) {
+        if width.checked_mul(height).is_none() {
+            return Err(format!(
+                "PCD header: WIDTH {width} × HEIGHT {height} is more than 2^64 points"
+            ));
+        }
+    }
     let (Some(sizes), Some(points)) = (sizes, declared_points) else {
         return Ok(None);
     };
@@ -491,6 +515,44 @@ mod tests {
         assert_eq!(layout.points_present(pcd.len()), 1);
         let err = parse_pcd(pcd).err().unwrap();
         assert!(!err.contains("memory"), "{err}");
+    }
+
+    /// `COUNT 0` (pcd-rs takes it as 1) and a WIDTH × HEIGHT beyond 2^64 points were read
+    /// without a word; both are errors naming the field.
+    #[test]
+    fn zero_counts_and_overflowing_dimensions_are_refused() {
+        let pcd = |fields: &str, count: &str, width: &str, height: &str| {
+            format!(
+                "VERSION 0.7\n{fields}\nSIZE 4 4 4\nTYPE F F F\nCOUNT {count}\nWIDTH {width}\nHEIGHT {height}\n\
+                 POINTS 3\nDATA ascii\n1 2 3\n4 5 6\n7 8 9\n"
+            )
+        };
+        let read = |text: String| parse_pcd(text.as_bytes()).and_then(|r| r.finish(NonFinite::Reject));
+        assert_eq!(
+            read(pcd("FIELDS x y z", "1 1 1", "3", "1")).unwrap().points.len(),
+            3
+        );
+        // Organised clouds: WIDTH × HEIGHT, up to the largest product that fits.
+        read(pcd("FIELDS x y z", "1 1 1", "4294967295", "4294967297")).unwrap();
+        for (fields, count, field) in [
+            ("FIELDS x y z", "1 0 1", "COUNT of field y is 0"),
+            ("FIELDS x y z", "0 1 1", "COUNT of field x is 0"),
+            ("COLUMNS x y z", "1 1 0", "COUNT of field z is 0"),
+        ] {
+            let err = read(pcd(fields, count, "3", "1")).unwrap_err();
+            assert!(err.contains(field) && err.contains("at least 1"), "{err}");
+        }
+        for (width, height) in [
+            ("4294967296", "4294967296"),
+            ("3", "9223372036854775808"),
+            ("18446744073709551615", "2"),
+        ] {
+            let err = read(pcd("FIELDS x y z", "1 1 1", width, height)).unwrap_err();
+            assert!(
+                err.contains(&format!("WIDTH {width} × HEIGHT {height}")) && err.contains("2^64"),
+                "{err}"
+            );
+        }
     }
 
     /// pcd-rs upper-cases header keys by Unicode rules: `ſIZE` is SIZE and `POıNTS` is POINTS
