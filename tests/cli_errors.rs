@@ -412,3 +412,30 @@ fn bad_options_give_one_line_and_exit_code_2() {
     let help = text(&sie(&["register", "--help"]).stdout);
     assert!(help.contains("Exit codes") && help.contains("Rz(YAW)"), "{help}");
 }
+
+/// `--threads -1` got clap's tip "to pass '-1' as a value, use '-- -1'", which suggests the
+/// value would then be taken; it now says which values are allowed, like a wrong count does.
+#[test]
+fn a_negative_thread_count_says_which_counts_are_allowed() {
+    let dir = scratch("threads-bad");
+    let cloud = dir.join("cloud.xyz");
+    fs::write(&cloud, "0 0 0\n1 0 0\n0 1 0\n0 0 1\n").unwrap();
+    let c = arg(&cloud);
+    for args in [
+        vec!["register", c, c, "--threads", "-1"],
+        vec!["register", c, c, "--threads=-1"],
+        vec!["register", c, c, "--threads", "1.5"],
+        vec!["demo", "--threads", "-1"],
+    ] {
+        let output = sie(&args);
+        let stderr = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(output.stdout.is_empty(), "{args:?}");
+        assert!(
+            stderr.contains("--threads")
+                && stderr.contains("0 (one per core) or a count of threads")
+                && !stderr.contains("tip:"),
+            "{args:?}: {stderr}"
+        );
+    }
+}

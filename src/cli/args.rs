@@ -155,7 +155,14 @@ pub struct RegisterArgs {
     #[arg(long, help_heading = "Data")]
     pub skip_origin: bool,
     /// Worker threads (0 = all cores).
-    #[arg(long, value_name = "N", default_value_t = defaults().threads, help_heading = "Data")]
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = defaults().threads,
+        value_parser = parse_threads,
+        allow_negative_numbers = true,
+        help_heading = "Data"
+    )]
     pub threads: usize,
     /// Seed of the correspondence sampling (equal seeds, equal results).
     #[arg(long, default_value_t = defaults().seed, help_heading = "Data")]
@@ -206,8 +213,16 @@ pub struct DemoArgs {
     #[arg(long, value_enum, default_value_t = MetricArg::PointToPlane)]
     pub metric: MetricArg,
     /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = parse_threads, allow_negative_numbers = true)]
     pub threads: usize,
+}
+
+/// `--threads`: a negative count is taken as a value (not as an unknown option, which got
+/// clap's tip to write `-- -1`) and refused with the values allowed; the library checks the
+/// upper bound.
+fn parse_threads(text: &str) -> Result<usize, String> {
+    text.parse()
+        .map_err(|_| "expected 0 (one per core) or a count of threads".to_string())
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
