@@ -63,11 +63,15 @@ impl Units {
                     .collect(),
             );
             units.centre = centre;
-            units.length = if spread.is_finite() && spread > 0.0 {
+            let length = if spread.is_finite() && spread > 0.0 {
                 spread
             } else {
                 largest
             };
+            // No coordinate may leave f64's range in these units: |p − centre| ≤ 2·largest (the
+            // centre is a median of coordinates), so a garbage point near ±f64::MAX stays finite
+            // (an outlier) among clouds whose spread is small.
+            units.length = length.max(largest / (f64::MAX / 8.0));
         }
         units
     }
@@ -98,7 +102,17 @@ impl Units {
     pub(crate) fn points(&self, points: &[Point]) -> Vec<Point> {
         points
             .iter()
-            .map(|p| std::array::from_fn(|axis| (p[axis] - self.centre[axis]) / self.length))
+            .map(|p| {
+                std::array::from_fn(|axis| {
+                    let offset = p[axis] - self.centre[axis];
+                    // Apart the difference of two coordinates near ±f64::MAX can overflow.
+                    if offset.is_finite() {
+                        offset / self.length
+                    } else {
+                        p[axis] / self.length - self.centre[axis] / self.length
+                    }
+                })
+            })
             .collect()
     }
 

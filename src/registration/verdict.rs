@@ -119,9 +119,14 @@ impl Evidence {
     }
 }
 
-/// Mean of the rows' squared residual norms (0 without rows).
+/// Mean of the rows' squared residual norms (0 without rows). A row whose square leaves f64's
+/// range (a garbage point far out) is left out: one of them made the mean infinite, and with
+/// it every pose significant.
 pub(crate) fn mean_squared_norm(rows: &Rows, cols: usize) -> f64 {
-    squared_norms(rows, cols).sum::<f64>() / rows.len().max(1) as f64
+    let (sum, count) = squared_norms(rows, cols)
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0usize), |(sum, count), v| (sum + v, count + 1));
+    sum / count.max(1) as f64
 }
 
 /// ‖r_i‖² / F_i² of every row.

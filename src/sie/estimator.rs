@@ -193,6 +193,19 @@ impl SieEstimator {
         }
     }
 
+    /// P(I|r_ij) of one component as a row's combination (§4.2) takes it. One histogram per
+    /// column is fitted to that column's samples alone, often a few hundred: its σ can come
+    /// out well below the column's spread, and an inlier's component just outside its range
+    /// would veto the row (P = 0) however well the other columns fit. There a component
+    /// beyond the range keeps the model's odds, G/H̃ (`probability_beyond_range`).
+    #[inline]
+    fn row_component_probability(&self, value: f64, col: usize) -> f64 {
+        match self.options.histogram {
+            HistogramMode::Pooled => self.models[0].probability(value.abs()),
+            HistogramMode::PerColumn => self.models[col].probability_beyond_range(value, &self.options),
+        }
+    }
+
     /// Per-row inlier probability P(I|R_i) into `out` (length n). Returns P(I), the mean
     /// per-component posterior used in γ.
     pub fn probabilities(&self, residuals: &[f64], cols: usize, out: &mut [f64]) -> f64 {
@@ -231,7 +244,7 @@ impl SieEstimator {
         for (o, row) in out.iter_mut().zip(residuals.chunks_exact(cols)) {
             let (mut log_inlier, mut log_outlier) = (0.0, 0.0);
             for (j, &r) in row.iter().enumerate().filter(|(j, _)| active(*j)) {
-                let p = self.component_probability(r, j);
+                let p = self.row_component_probability(r, j);
                 log_inlier += p.ln();
                 log_outlier += (-p).ln_1p();
             }
@@ -372,5 +385,40 @@ mod tests {
         let pout = p[800..].iter().sum::<f64>() / 800.0;
         assert!(pin > 0.95, "{pin}");
         assert!(pout < 0.05, "{pout}");
+    }
+    /// Hundreds of columns, one histogram each, fitted on 200 samples: some σ come out well
+    /// below the spread (0.3 for N(0, 1)), and an inlier's component outside such a range used
+    /// to give its whole row P = 0. Rows whose every component is far out stay outliers.
+    #[test]
+    fn many_columns_of_inliers_are_inliers_per_column() {
+        let mut rng = rand::rngs::Xoshiro256PlusPlus::seed_from_u64(3);
+        let normal = Normal::new(0.0, 1.0).unwrap();
+        for cols in [3, 200, 500, 1000] {
+            let (inliers, outliers) = (200, 20);
+            let mut r: Vec<f64> = (0..inliers * cols).map(|_| normal.sample(&mut rng)).collect();
+            r.extend(
+                (0..outliers * cols)
+                    .map(|_| rng.random_range(15.0..30.0) * if rng.random::<bool>() { 1.0 } else { -1.0 }),
+            );
+            let mut sie = SieEstimator::new(SieOptions {
+                histogram: HistogramMode::PerColumn,
+                ..SieOptions::default()
+            });
+            sie.fit(&r, cols);
+            sie.adapt_penalty();
+            sie.fit(&r, cols);
+            let mut p = vec![0.0; inliers + outliers];
+            sie.probabilities(&r, cols, &mut p);
+            let lowest_inlier = p[..inliers].iter().cloned().fold(1.0, f64::min);
+            let highest_outlier = p[inliers..].iter().cloned().fold(0.0, f64::max);
+            assert!(
+                lowest_inlier > 0.5,
+                "{cols} columns: an inlier row at P = {lowest_inlier}"
+            );
+            assert!(
+                highest_outlier < 0.01,
+                "{cols} columns: an outlier row at P = {highest_outlier}"
+            );
+        }
     }
 }

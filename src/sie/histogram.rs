@@ -135,6 +135,21 @@ impl HistogramModel {
         self.probability[i] * (1.0 - f) + self.probability[i + 1] * f
     }
 
+    /// P(I|x) as [`HistogramModel::probability`] inside the range; beyond it G_{σ+β}(x)
+    /// over the histogram's floor (the smallest H̃ the table divides by), capped as the table
+    /// is: the samples there are too few to count, and G's own tail says how unlikely an
+    /// inlier is (0 once G underflows, tens of σ out).
+    pub(crate) fn probability_beyond_range(&self, x: f64, options: &SieOptions) -> f64 {
+        if self.probability.is_empty() || self.hi == self.lo || (x >= self.lo && x < self.hi) {
+            return self.probability(x);
+        }
+        let g = self.model(x, ModelWidth::SigmaPlusBeta);
+        if g == 0.0 {
+            return 0.0;
+        }
+        (g / density_floor(&self.smoothed)).min(options.max_probability)
+    }
+
     /// H̃ at x, linearly interpolated between bin centres (0 outside the range; |r| histograms
     /// are mirrored at 0).
     fn smoothed_at(&self, x: f64) -> f64 {
@@ -382,8 +397,7 @@ impl HistogramModel {
     /// at 1 % of its peak so empty tail bins do not produce spurious certainty.
     fn update_probabilities(&mut self, options: &SieOptions) {
         let bins = self.smoothed.len();
-        let peak = self.smoothed.iter().cloned().fold(0.0, f64::max);
-        let floor = (0.01 * peak).max(1.0);
+        let floor = density_floor(&self.smoothed);
         let mut table = std::mem::take(&mut self.probability);
         table.clear();
         table.extend((0..bins).map(|b| {
@@ -400,6 +414,13 @@ impl HistogramModel {
         let count: f64 = self.counts.iter().sum();
         self.mean_inlier_probability = if count > 0.0 { weighted / count } else { 0.0 };
     }
+}
+
+/// The smallest H̃ the probability table divides by: one count, or 1 % of the peak (a
+/// smoothed histogram's far bins are noise).
+fn density_floor(smoothed: &[f64]) -> f64 {
+    let peak = smoothed.iter().cloned().fold(0.0, f64::max);
+    (0.01 * peak).max(1.0)
 }
 
 /// Sub-bin peak: argmax refined by the parabola through its neighbours. Returns (position in

@@ -53,7 +53,7 @@ impl WarmStart {
             return Err(format!("warm start sigma must be finite and > 0, got {bad}"));
         }
         let warm = WarmStart {
-            sigma: (sigma.iter().map(|s| s * s).sum::<f64>() / sigma.len().max(1) as f64).sqrt(),
+            sigma: root_mean_square_of_positive(sigma),
             penalty,
             noise_shape,
             inlier_fraction,
@@ -89,6 +89,20 @@ impl WarmStart {
         }
         Ok(())
     }
+}
+
+/// sqrt(mean(s²)) of finite positive values, with no overflow or underflow on the way: σ of
+/// 1e300 (finite, accepted) gave an infinite RMS and an error saying "got inf".
+fn root_mean_square_of_positive(values: &[f64]) -> f64 {
+    let plain = (values.iter().map(|s| s * s).sum::<f64>() / values.len().max(1) as f64).sqrt();
+    if plain.is_finite() && plain > 0.0 {
+        return plain;
+    }
+    let largest = values.iter().cloned().fold(0.0, f64::max);
+    if largest == 0.0 {
+        return 0.0;
+    }
+    largest * (values.iter().map(|s| (s / largest).powi(2)).sum::<f64>() / values.len() as f64).sqrt()
 }
 
 /// A warm start's β₀, in σ of the previous fit: one level above the noise, wide enough for a
@@ -367,4 +381,30 @@ pub(crate) fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
         .map(|v| v * v)
         .sum::<f64>()
         .sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Any finite σ > 0 is a warm start, at either end of f64's range; the RMS over several
+    /// histograms neither overflows nor underflows. Before: σ = 1e300 was refused as "got inf".
+    #[test]
+    fn warm_starts_take_any_finite_positive_sigma() {
+        for (sigma, expected) in [
+            (vec![1e300], 1e300),
+            (vec![1e-300], 1e-300),
+            (vec![f64::MAX, f64::MAX], f64::MAX),
+            (vec![0.03, 0.04], (0.0025f64 / 2.0).sqrt()),
+        ] {
+            let warm = WarmStart::from_fit(&sigma, 2.0, 2.0, 0.5).unwrap();
+            assert!(
+                (warm.sigma - expected).abs() <= 1e-15 * expected,
+                "{sigma:?}: {}",
+                warm.sigma
+            );
+        }
+        let error = WarmStart::from_fit(&[0.01, f64::INFINITY], 2.0, 2.0, 0.5).unwrap_err();
+        assert!(error.contains("got inf"), "{error}");
+    }
 }

@@ -89,23 +89,40 @@ impl Pairs<'_> {
     }
 
     /// The background of `significance` for these pairs: L² = the target's mean squared
-    /// distance from its centroid (normalised by F_i²).
+    /// distance from its centroid (normalised by F_i²). A garbage pair far out (coordinates
+    /// near ±f64::MAX) makes that infinite: the median point is the centre then, and the
+    /// distances whose squares leave f64's range are left out.
     pub fn background(&self) -> Background {
         let centroid = crate::geometry::centroid(self.target);
-        let spread: f64 = self
-            .target
-            .iter()
-            .zip(self.scales)
-            .map(|(b, f)| {
-                ((b[0] - centroid[0]).powi(2) + (b[1] - centroid[1]).powi(2) + (b[2] - centroid[2]).powi(2))
-                    / (f * f)
-            })
-            .sum::<f64>()
-            / self.len() as f64;
+        let spread = self.mean_squared_distance(&centroid).unwrap_or_else(|| {
+            let centre = crate::geometry::median_point(self.target);
+            self.mean_squared_distance(&centre).unwrap_or(0.0)
+        });
         Background {
             spread_squared: spread.max(f64::MIN_POSITIVE),
             dims: 3,
         }
+    }
+
+    /// Mean over the pairs of ‖b_i − centre‖² / F_i² (every term when all are finite, else
+    /// the finite ones; `None` when every term or the mean is not finite).
+    fn mean_squared_distance(&self, centre: &Point) -> Option<f64> {
+        let term = |(b, f): (&Point, &f64)| {
+            ((b[0] - centre[0]).powi(2) + (b[1] - centre[1]).powi(2) + (b[2] - centre[2]).powi(2)) / (f * f)
+        };
+        let all = self.target.iter().zip(self.scales).map(term).sum::<f64>() / self.len() as f64;
+        if all.is_finite() {
+            return Some(all);
+        }
+        let (sum, count) = self
+            .target
+            .iter()
+            .zip(self.scales)
+            .map(term)
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0usize), |(sum, count), v| (sum + v, count + 1));
+        let mean = sum / count as f64;
+        (count > 0 && mean.is_finite()).then_some(mean)
     }
 }
 
