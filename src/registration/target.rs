@@ -227,7 +227,7 @@ impl PreparedTarget {
         let in_order =
             |values: &[Point]| -> Vec<Point> { order.iter().map(|&i| values[i as usize]).collect() };
         let sorted = in_order(points);
-        let index = NearestNeighbours::new(&sorted).map_err(Error::InvalidArgument)?;
+        let index = NearestNeighbours::new(&sorted)?;
         let index_seconds = started.elapsed().as_secs_f64();
         let normals = match normals {
             Some(given) => {
