@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use nalgebra::Matrix4;
 use sie::memory::{
     cloud_registration_bytes, correspondence_registration_bytes, estimate_bytes, prepared_registration_bytes,
+    prepared_target_bytes,
 };
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
@@ -186,4 +187,74 @@ fn working_set_bounds_cover_the_measured_peaks() {
         estimate_bytes(residuals.len())
     );
     assert!(peak <= estimate_bytes(residuals.len()));
+
+    preparing_targets(&scene.target, &grid_target);
+}
+
+/// `cloud` in the shape that costs `PreparedTarget::new` most: every 7th point NaN (skipped:
+/// a copy of the kept points), every 5th an exact copy of the one before (the kd-tree's
+/// duplicate table) and all of it beyond the safe range (a copy in other units); normals
+/// [0, 0, 1], NaN at the NaN points.
+fn costly_target(cloud: &[Point]) -> (Vec<Point>, Vec<Point>) {
+    let mut points: Vec<Point> = cloud.iter().map(|p| p.map(|c| c * 1e40)).collect();
+    let mut normals = vec![[0.0, 0.0, 1.0]; points.len()];
+    for i in 1..points.len() {
+        if i % 7 == 0 {
+            points[i] = [f64::NAN; 3];
+            normals[i] = [f64::NAN; 3];
+        } else if i % 5 == 0 {
+            points[i] = points[i - 1];
+        }
+    }
+    (points, normals)
+}
+
+/// `prepared_target_bytes` against the peak of `PreparedTarget::new`, with and without given
+/// normals, as given and in its costliest shape.
+fn preparing_targets(room: &[Point], grid: &[Point]) {
+    let mut worst = 0.0f64;
+    for (shape, cloud) in [("room", room), ("grid", grid)] {
+        let (costly, costly_normals) = costly_target(cloud);
+        let plain_normals = vec![[0.0, 0.0, 1.0]; cloud.len()];
+        for (variant, points, normals, non_finite) in [
+            ("as given", cloud, &plain_normals, NonFinite::Reject),
+            (
+                "skipped, duplicated, far",
+                &costly[..],
+                &costly_normals,
+                NonFinite::Skip,
+            ),
+        ] {
+            for (n, with_normals) in [(6_000, false), (60_000, false), (6_000, true), (60_000, true)] {
+                let (points, normals) = (&points[..n], &normals[..n]);
+                let options = PrepareOptions {
+                    non_finite,
+                    ..PrepareOptions::default()
+                };
+                let given = with_normals.then_some(normals);
+                let bound = prepared_target_bytes(points.len(), with_normals);
+                let peak = peak_of(bound, || {
+                    drop(PreparedTarget::new(points, given, &options).unwrap());
+                });
+                let use_of_bound = peak as f64 / bound as f64;
+                println!(
+                    "prepare {shape} {variant}, normals {with_normals}, {} points: peak {peak} B ({:.1} B a point), \
+                     bound {bound} B ({:.0} %)",
+                    points.len(),
+                    peak as f64 / points.len() as f64,
+                    100.0 * use_of_bound
+                );
+                assert!(
+                    peak <= bound,
+                    "prepare {shape} {variant} {n} {with_normals}: {peak} > {bound}"
+                );
+                worst = worst.max(use_of_bound);
+            }
+        }
+    }
+    assert!(
+        worst > 0.6,
+        "the tightest target uses only {:.0} % of its bound",
+        100.0 * worst
+    );
 }

@@ -72,7 +72,8 @@ unsafe fn prepare_target_from<T: Coordinate>(
 /// target does not refer to it afterwards. On success `*out_target` receives a new target (free
 /// it with `sie_target_free`); on error it is not written. Errors: NULL_ARGUMENT,
 /// INVALID_ARGUMENT (stride, alignment, normal length), TOO_FEW_POINTS, NON_FINITE_INPUT,
-/// BUSY.
+/// BUSY, OUT_OF_MEMORY (the copy of the points and the target's working set, about 120 bytes
+/// a point and 60 more with normals, cannot be allocated; checked before the target is built).
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; `xyz` is NULL or readable for `count` points at its
