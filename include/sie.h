@@ -1134,7 +1134,9 @@ sie_status sie_context_prepare_target_d(struct sie_context *ctx,
  * for a map prepared in the background. Without it, registrations estimate the normals they
  * reach (less work when they reach only part of the target); results are the same either way.
  * May run while other threads register onto the same target. Returns NULL_ARGUMENT for NULL,
- * INVALID_ARGUMENT for more than 1024 threads, otherwise OK.
+ * INVALID_ARGUMENT for more than 1024 threads, OUT_OF_MEMORY when the normals (about 36 bytes
+ * a point) cannot be allocated (checked before any is estimated; the target stays usable),
+ * otherwise OK.
  *
  * # Safety
  * `target` is NULL or a live target.

@@ -287,6 +287,29 @@ fn layered_grid(count: usize) -> Vec<f32> {
     points
 }
 
+/// The three planes x = 0, y = 0 and z = 0 of a corner, each `side` × `side` points about 1 mm
+/// apart (taking every `step`th along each axis), moved by `shift`. The points are moved off
+/// the exact lattice within their planes, whose many equal distances slow the kd-tree down.
+fn corner(side: usize, step: usize, shift: [f32; 3]) -> Vec<f32> {
+    let jitter = |i: usize| ((i.wrapping_mul(0x9e37_79b9) >> 7) % 1000) as f32 * 4e-7;
+    let mut points = Vec::with_capacity(9 * side * side / (step * step));
+    for plane in 0..3 {
+        for u in (0..side).step_by(step) {
+            for v in (0..side).step_by(step) {
+                let i = (plane * side + u) * side + v;
+                let (u, v) = (u as f32 * 0.001 + jitter(i), v as f32 * 0.001 + jitter(i + 1));
+                let p = match plane {
+                    0 => [0.0, u, v],
+                    1 => [u, 0.0, v],
+                    _ => [u, v, 0.0],
+                };
+                points.extend((0..3).map(|axis| p[axis] + shift[axis]));
+            }
+        }
+    }
+    points
+}
+
 fn floats(points: &[[f64; 3]]) -> Vec<f32> {
     points.iter().flatten().map(|&c| c as f32).collect()
 }
@@ -405,6 +428,57 @@ fn a_target_of_15_m_points_that_does_not_fit_is_out_of_memory() {
 #[ignore = "run by a_target_of_15_m_points_that_does_not_fit_is_out_of_memory in a limited child"]
 fn child_target_of_15_m_points_does_not_fit() {
     child_target_does_not_fit(15_000_000);
+}
+
+/// Estimating every normal of a 9 M-point target (~330 MB asked for) when the host holds all
+/// but 32 MiB of its 1 GiB is refused before any normal is estimated; once the host lets go,
+/// the same context registers a small source onto the same target (~730 MB asked for). Before:
+/// SIGABRT allocating the normals.
+#[test]
+fn normals_that_do_not_fit_are_out_of_memory() {
+    let stdout = run_child("child_normals_do_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("normals: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by normals_that_do_not_fit_are_out_of_memory in a limited child"]
+fn child_normals_do_not_fit() {
+    let Some(budget) = child_budget() else {
+        return;
+    };
+    let ctx = two_thread_context();
+    // One start keeps the registration onto 9 M points short.
+    // SAFETY: a live context.
+    assert_eq!(
+        unsafe { sie_context_set_starts(ctx, sie_starts::InitialGuess as u32) },
+        sie_status::Ok
+    );
+    // Prepared before the limit: the target is the host's, the budget is for what follows.
+    let side = 1732;
+    let points = corner(side, 1, [0.0; 3]);
+    assert_eq!(points.len() / 3, 3 * side * side);
+    let (status, target) = prepare_target(ctx, &points);
+    assert_eq!(status, sie_status::Ok, "{}", last_error(ctx));
+    drop(points);
+    limit_address_space_to(budget);
+    // Address space only: the pages are never touched.
+    let held = std::hint::black_box(vec![0u8; budget - 32 * MIB]);
+    // SAFETY: a live target.
+    let status = unsafe { sie_target_estimate_normals(target, 2) };
+    println!("normals: {status:?}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    drop(held);
+    let mut out = [0.0; 16];
+    let status = register_to(ctx, &corner(side, 40, [0.003, 0.002, -0.002]), target, &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, each freed once, the target after its last registration.
+    unsafe {
+        sie_target_free(target);
+        sie_context_free(ctx);
+    }
 }
 
 /// A kd-tree whose duplicate table (268 MB for 24 M points) does not fit in 16 MiB: the
