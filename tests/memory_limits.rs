@@ -481,6 +481,50 @@ fn child_normals_do_not_fit() {
     }
 }
 
+/// A 20 M-point float source onto a prepared target of 1000 points: 720 MB of array and copy,
+/// then ~3 GB of working set, in 1 GiB, is refused before the registration starts; the same
+/// context and target then register a small source. Before (without the core's check): SIGABRT
+/// part-way.
+#[test]
+fn a_20_m_point_source_onto_a_small_target_is_out_of_memory() {
+    let stdout = run_child("child_20_m_point_source_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_20_m_point_source_onto_a_small_target_is_out_of_memory in a limited child"]
+fn child_20_m_point_source_does_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let ctx = two_thread_context();
+    let scene = sie::synthetic::room_scene(1000, 0.01, 1);
+    let (status, target) = prepare_target(ctx, &floats(&scene.target));
+    assert_eq!(status, sie_status::Ok, "{}", last_error(ctx));
+    let mut out = [0.0; 16];
+    let big = layered_grid(20_000_000);
+    let status = register_to(ctx, &big, target, &mut out);
+    let message = last_error(ctx);
+    println!("big: {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(
+        message.contains("registration") && message.contains("GiB"),
+        "{message}"
+    );
+    assert_eq!(out, [0.0; 16]);
+    drop(big);
+    let status = register_to(ctx, &floats(&scene.source), target, &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, each freed once, the target after its last registration.
+    unsafe {
+        sie_target_free(target);
+        sie_context_free(ctx);
+    }
+}
+
 /// A kd-tree whose duplicate table (268 MB for 24 M points) does not fit in 16 MiB: the
 /// error says out of memory in its kind, not only in its message, so the C layer returns
 /// OUT_OF_MEMORY; a small index is then built in the same limited process. Before: a message
