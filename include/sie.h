@@ -1098,7 +1098,8 @@ sie_status sie_context_register_correspondences_d(struct sie_context *ctx,
  * target does not refer to it afterwards. On success `*out_target` receives a new target (free
  * it with `sie_target_free`); on error it is not written. Errors: NULL_ARGUMENT,
  * INVALID_ARGUMENT (stride, alignment, normal length), TOO_FEW_POINTS, NON_FINITE_INPUT,
- * BUSY.
+ * BUSY, OUT_OF_MEMORY (the copy of the points and the target's working set, about 120 bytes
+ * a point and 60 more with normals, cannot be allocated; checked before the target is built).
  *
  * # Safety
  * `ctx` is NULL or a live context; `xyz` is NULL or readable for `count` points at its
@@ -1133,7 +1134,9 @@ sie_status sie_context_prepare_target_d(struct sie_context *ctx,
  * for a map prepared in the background. Without it, registrations estimate the normals they
  * reach (less work when they reach only part of the target); results are the same either way.
  * May run while other threads register onto the same target. Returns NULL_ARGUMENT for NULL,
- * INVALID_ARGUMENT for more than 1024 threads, otherwise OK.
+ * INVALID_ARGUMENT for more than 1024 threads, OUT_OF_MEMORY when the normals (about 36 bytes
+ * a point) cannot be allocated (checked before any is estimated; the target stays usable),
+ * otherwise OK.
  *
  * # Safety
  * `target` is NULL or a live target.

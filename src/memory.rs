@@ -108,6 +108,35 @@ pub fn prepared_registration_bytes(source: usize, target: usize) -> usize {
 /// See [`prepared_registration_bytes`].
 const PREPARED_TARGET_BYTES: usize = 80;
 
+/// Peak heap of `PreparedTarget::new` beyond its input: the curve order, the sorted copy and
+/// the kd-tree, with `with_normals` the normals in curve order. Measured (tests/peak_memory.rs)
+/// at most 80 B a point and 29 B more with normals, when non-finite points are skipped, some
+/// are duplicates and all are beyond the safe range (a copy each), 69 and 24 B otherwise;
+/// bounded here with ~25 % margin.
+pub fn prepared_target_bytes(points: usize, with_normals: bool) -> usize {
+    let per_point = if with_normals {
+        TARGET_POINT_BYTES + TARGET_NORMAL_BYTES
+    } else {
+        TARGET_POINT_BYTES
+    };
+    linear(points, per_point, TARGET_OVERHEAD)
+}
+
+/// See [`prepared_target_bytes`].
+const TARGET_POINT_BYTES: usize = 98;
+const TARGET_NORMAL_BYTES: usize = 36;
+/// The fixed part of [`prepared_target_bytes`] (measured at a few kB).
+const TARGET_OVERHEAD: usize = 1 << 20;
+
+/// Peak heap of `PreparedTarget::estimate_all_normals` on a target whose normals are not set
+/// up yet (0 points: once they are). Per point the normals (12 B) and the thinned copy and
+/// kd-tree a dense noisy target takes its neighbourhoods from: measured (tests/peak_memory.rs)
+/// at most 29 B, when a quarter of the points is kept. Fixed: one block of normals being
+/// estimated, measured at 3.4 MB. Both bounded here with ~25 % margin.
+pub fn target_normals_bytes(points: usize) -> usize {
+    linear(points, 36, 4 << 20)
+}
+
 /// Peak heap of `register_correspondences` beyond its inputs (measured at most 165 B a pair).
 pub fn correspondence_registration_bytes(pairs: usize) -> usize {
     linear(pairs, 184, OVERHEAD)

@@ -16,6 +16,8 @@ use kiddo::stem_strategies::Eytzinger;
 const BUCKET: usize = 32;
 type Tree = KdTree<f64, u32, Eytzinger, FlatVec<f64, u32, 3, BUCKET>, 3, BUCKET>;
 
+use crate::error::Error;
+use crate::memory::{MemoryError, try_vec};
 use crate::point::Point;
 
 /// Clouds whose largest coordinate magnitude lies in [2^-64, 2^64] are indexed as given; others
@@ -79,22 +81,22 @@ impl NearestNeighbours {
     /// Builds the tree on the caller's thread (kiddo's parallel construction needs its rayon
     /// feature, which we leave off; see src/parallel.rs).
     ///
-    /// Errors: more than `u32::MAX` points (kiddo stores u32 indices), a non-finite
-    /// coordinate (it would corrupt the tree's splits), memory for the duplicate table, or a
-    /// kiddo construction error.
-    pub fn new(points: &[Point]) -> Result<Self, String> {
+    /// Errors: more than `u32::MAX` points (kiddo stores u32 indices) or a kiddo construction
+    /// error ([`Error::InvalidArgument`]), a non-finite coordinate (it would corrupt the tree's
+    /// splits; [`Error::NonFinite`]), no memory for the duplicate table ([`Error::OutOfMemory`]).
+    pub fn new(points: &[Point]) -> Result<Self, Error> {
         if points.len() > u32::MAX as usize {
-            return Err(format!(
+            return Err(Error::InvalidArgument(format!(
                 "nearest-neighbour index: {} points exceed the limit of {}",
                 points.len(),
                 u32::MAX
-            ));
+            )));
         }
         if let Some(bad) = points.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
-            return Err(format!(
+            return Err(Error::NonFinite(format!(
                 "nearest-neighbour index: points[{bad}] has a non-finite coordinate {:?}",
                 points[bad]
-            ));
+            )));
         }
         let scale = tree_scale(points);
         let locations = distinct_locations(points)?;
@@ -115,7 +117,7 @@ impl NearestNeighbours {
                 )
             }
         }
-        .map_err(|e| format!("nearest-neighbour index: {e}"))?;
+        .map_err(|e| Error::InvalidArgument(format!("nearest-neighbour index: {e}")))?;
         Ok(NearestNeighbours {
             tree,
             len: points.len(),
@@ -300,7 +302,7 @@ fn length_without_overflow(v: &Point, largest: f64) -> f64 {
 ///
 /// Open addressing over u32 ids (load ≤ 2/3): 6–12 bytes per point while it runs, one pass
 /// when nothing repeats (the common case).
-fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, String> {
+fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, MemoryError> {
     let n = points.len();
     if n < 2 {
         return Ok(None);
@@ -366,8 +368,8 @@ fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, String> {
     Ok(Some(Locations { offsets, members }))
 }
 
-fn try_with_capacity<T>(count: usize) -> Result<Vec<T>, String> {
-    crate::memory::try_vec(count, "the nearest-neighbour index").map_err(|e| e.to_string())
+fn try_with_capacity<T>(count: usize) -> Result<Vec<T>, MemoryError> {
+    try_vec(count, "the nearest-neighbour index")
 }
 
 const EMPTY_SLOT: u32 = u32::MAX;
@@ -687,7 +689,10 @@ mod tests {
         let err = NearestNeighbours::new(&[[0.0; 3], [f64::NAN, 0.0, 0.0]])
             .err()
             .unwrap();
-        assert!(err.contains("points[1]"), "{err}");
+        assert!(
+            matches!(&err, Error::NonFinite(m) if m.contains("points[1]")),
+            "{err}"
+        );
         assert!(NearestNeighbours::new(&[[f64::INFINITY, 0.0, 0.0]]).is_err());
     }
 }

@@ -39,13 +39,22 @@ fn run_child(name: &str, budget: usize) -> String {
 /// In a child: caps the address space and returns true; run directly (without the variable):
 /// false, and the child test does nothing.
 fn limit_address_space() -> bool {
-    let Some(budget) = std::env::var(BUDGET_VARIABLE)
+    child_budget().map(limit_address_space_to).is_some()
+}
+
+/// In a child: its budget; run directly: `None` (and says so).
+fn child_budget() -> Option<usize> {
+    let budget = std::env::var(BUDGET_VARIABLE)
         .ok()
-        .and_then(|b| b.parse::<usize>().ok())
-    else {
+        .and_then(|b| b.parse::<usize>().ok());
+    if budget.is_none() {
         println!("run by its parent test only");
-        return false;
-    };
+    }
+    budget
+}
+
+/// Caps this process's address space at its current size plus `budget`.
+fn limit_address_space_to(budget: usize) {
     let status = std::fs::read_to_string("/proc/self/status").unwrap();
     let current_kb: usize = status
         .lines()
@@ -59,7 +68,6 @@ fn limit_address_space() -> bool {
     };
     // SAFETY: a plain system call on a valid struct; it only lowers this process's limit.
     assert_eq!(unsafe { libc::setrlimit(libc::RLIMIT_AS, &cap) }, 0);
-    true
 }
 
 fn last_error(ctx: *mut sie_context) -> String {
@@ -264,6 +272,290 @@ fn child_registration_onto_a_target_does_not_fit() {
         sie_target_free(target);
         sie_context_free(ctx);
     }
+}
+
+/// `count` float points in layers of 2000 × 2000, 3 mm apart, the layers 1 m apart.
+fn layered_grid(count: usize) -> Vec<f32> {
+    let mut points = Vec::with_capacity(3 * count);
+    for i in 0..count {
+        points.extend([
+            (i % 2000) as f32 * 0.003,
+            (i / 2000 % 2000) as f32 * 0.003,
+            (i / 4_000_000) as f32,
+        ]);
+    }
+    points
+}
+
+/// The three planes x = 0, y = 0 and z = 0 of a corner, each `side` × `side` points about 1 mm
+/// apart (taking every `step`th along each axis), moved by `shift`. The points are moved off
+/// the exact lattice within their planes, whose many equal distances slow the kd-tree down.
+fn corner(side: usize, step: usize, shift: [f32; 3]) -> Vec<f32> {
+    let jitter = |i: usize| ((i.wrapping_mul(0x9e37_79b9) >> 7) % 1000) as f32 * 4e-7;
+    let mut points = Vec::with_capacity(9 * side * side / (step * step));
+    for plane in 0..3 {
+        for u in (0..side).step_by(step) {
+            for v in (0..side).step_by(step) {
+                let i = (plane * side + u) * side + v;
+                let (u, v) = (u as f32 * 0.001 + jitter(i), v as f32 * 0.001 + jitter(i + 1));
+                let p = match plane {
+                    0 => [0.0, u, v],
+                    1 => [u, 0.0, v],
+                    _ => [u, v, 0.0],
+                };
+                points.extend((0..3).map(|axis| p[axis] + shift[axis]));
+            }
+        }
+    }
+    points
+}
+
+fn floats(points: &[[f64; 3]]) -> Vec<f32> {
+    points.iter().flatten().map(|&c| c as f32).collect()
+}
+
+/// A context that runs on two threads, so that the threads' memory does not depend on the
+/// machine.
+fn two_thread_context() -> *mut sie_context {
+    let ctx = sie_context_new();
+    // SAFETY: a live context.
+    assert_eq!(unsafe { sie_context_set_threads(ctx, 2) }, sie_status::Ok);
+    ctx
+}
+
+/// `sie_context_prepare_target` of packed float points without normals: the status and the
+/// target (NULL unless OK).
+fn prepare_target(ctx: *mut sie_context, points: &[f32]) -> (sie_status, *mut sie_target) {
+    let mut target = std::ptr::null_mut();
+    // SAFETY: a live context, a packed array of three floats per point; `target` receives one
+    // pointer.
+    let status = unsafe {
+        sie_context_prepare_target(ctx, points.as_ptr(), points.len() / 3, 0, null(), 0, &mut target)
+    };
+    (status, target)
+}
+
+/// `sie_context_register_to` of packed float points onto `target`.
+fn register_to(
+    ctx: *mut sie_context,
+    source: &[f32],
+    target: *const sie_target,
+    out: &mut [f64; 16],
+) -> sie_status {
+    // SAFETY: a live context and target, a packed array of three floats per point; `out` holds
+    // 16 doubles.
+    unsafe {
+        sie_context_register_to(
+            ctx,
+            source.as_ptr(),
+            source.len() / 3,
+            0,
+            target,
+            null(),
+            out.as_mut_ptr(),
+        )
+    }
+}
+
+/// A small scene's target prepared on `ctx` and its source registered onto it: the statuses.
+fn small_registration(ctx: *mut sie_context) -> String {
+    let scene = sie::synthetic::room_scene(2000, 0.01, 1);
+    let (status, target) = prepare_target(ctx, &floats(&scene.target));
+    if status != sie_status::Ok {
+        return format!("prepare {status:?}: {}", last_error(ctx));
+    }
+    let mut out = [0.0; 16];
+    let status = register_to(ctx, &floats(&scene.source), target, &mut out);
+    // SAFETY: prepared above, freed once after its registration.
+    unsafe { sie_target_free(target) };
+    format!("{status:?}: {}", last_error(ctx))
+}
+
+/// Preparing a target of `count` float points in 1 GiB: the array and its copy fit, the
+/// preparation (sort, kd-tree: ~100 B a point) does not and is refused before it starts; the
+/// context then prepares a small target and registers onto it.
+fn child_target_does_not_fit(count: usize) {
+    if !limit_address_space() {
+        return;
+    }
+    let ctx = two_thread_context();
+    let points = layered_grid(count);
+    let (status, target) = prepare_target(ctx, &points);
+    let message = last_error(ctx);
+    println!("big: {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(target.is_null(), "no target on error");
+    assert!(
+        message.contains("preparing this target") && message.contains("GiB"),
+        "{message}"
+    );
+    drop(points);
+    println!("small: {}", small_registration(ctx));
+    // SAFETY: allocated above, freed once.
+    unsafe { sie_context_free(ctx) };
+}
+
+/// 20 M float points: 720 MB of array and copy, then ~2 GB to prepare, in 1 GiB. Before:
+/// SIGABRT part-way (the curve sort's buffer).
+#[test]
+fn a_target_of_20_m_points_that_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_target_of_20_m_points_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_target_of_20_m_points_that_does_not_fit_is_out_of_memory in a limited child"]
+fn child_target_of_20_m_points_does_not_fit() {
+    child_target_does_not_fit(20_000_000);
+}
+
+/// 15 M float points: 540 MB of array and copy, then ~1.5 GB to prepare, in 1 GiB. Before:
+/// INVALID_ARGUMENT "out of memory" (the kd-tree's duplicate table, allocated fallibly but
+/// reported as a bad argument).
+#[test]
+fn a_target_of_15_m_points_that_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_target_of_15_m_points_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_target_of_15_m_points_that_does_not_fit_is_out_of_memory in a limited child"]
+fn child_target_of_15_m_points_does_not_fit() {
+    child_target_does_not_fit(15_000_000);
+}
+
+/// Estimating every normal of a 9 M-point target (~330 MB asked for) when the host holds all
+/// but 32 MiB of its 1 GiB is refused before any normal is estimated; once the host lets go,
+/// the same context registers a small source onto the same target (~730 MB asked for). Before:
+/// SIGABRT allocating the normals.
+#[test]
+fn normals_that_do_not_fit_are_out_of_memory() {
+    let stdout = run_child("child_normals_do_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("normals: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by normals_that_do_not_fit_are_out_of_memory in a limited child"]
+fn child_normals_do_not_fit() {
+    let Some(budget) = child_budget() else {
+        return;
+    };
+    let ctx = two_thread_context();
+    // One start keeps the registration onto 9 M points short.
+    // SAFETY: a live context.
+    assert_eq!(
+        unsafe { sie_context_set_starts(ctx, sie_starts::InitialGuess as u32) },
+        sie_status::Ok
+    );
+    // Prepared before the limit: the target is the host's, the budget is for what follows.
+    let side = 1732;
+    let points = corner(side, 1, [0.0; 3]);
+    assert_eq!(points.len() / 3, 3 * side * side);
+    let (status, target) = prepare_target(ctx, &points);
+    assert_eq!(status, sie_status::Ok, "{}", last_error(ctx));
+    drop(points);
+    limit_address_space_to(budget);
+    // Address space only: the pages are never touched.
+    let held = std::hint::black_box(vec![0u8; budget - 32 * MIB]);
+    // SAFETY: a live target.
+    let status = unsafe { sie_target_estimate_normals(target, 2) };
+    println!("normals: {status:?}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    drop(held);
+    let mut out = [0.0; 16];
+    let status = register_to(ctx, &corner(side, 40, [0.003, 0.002, -0.002]), target, &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, each freed once, the target after its last registration.
+    unsafe {
+        sie_target_free(target);
+        sie_context_free(ctx);
+    }
+}
+
+/// A 20 M-point float source onto a prepared target of 1000 points: 720 MB of array and copy,
+/// then ~3 GB of working set, in 1 GiB, is refused before the registration starts; the same
+/// context and target then register a small source. Before (without the core's check): SIGABRT
+/// part-way.
+#[test]
+fn a_20_m_point_source_onto_a_small_target_is_out_of_memory() {
+    let stdout = run_child("child_20_m_point_source_does_not_fit", 1024 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_20_m_point_source_onto_a_small_target_is_out_of_memory in a limited child"]
+fn child_20_m_point_source_does_not_fit() {
+    if !limit_address_space() {
+        return;
+    }
+    let ctx = two_thread_context();
+    let scene = sie::synthetic::room_scene(1000, 0.01, 1);
+    let (status, target) = prepare_target(ctx, &floats(&scene.target));
+    assert_eq!(status, sie_status::Ok, "{}", last_error(ctx));
+    let mut out = [0.0; 16];
+    let big = layered_grid(20_000_000);
+    let status = register_to(ctx, &big, target, &mut out);
+    let message = last_error(ctx);
+    println!("big: {status:?}: {message}");
+    assert_eq!(status, sie_status::OutOfMemory);
+    assert!(
+        message.contains("registration") && message.contains("GiB"),
+        "{message}"
+    );
+    assert_eq!(out, [0.0; 16]);
+    drop(big);
+    let status = register_to(ctx, &floats(&scene.source), target, &mut out);
+    println!("small: {status:?}: {}", last_error(ctx));
+    // SAFETY: allocated above, each freed once, the target after its last registration.
+    unsafe {
+        sie_target_free(target);
+        sie_context_free(ctx);
+    }
+}
+
+/// A kd-tree whose duplicate table (268 MB for 24 M points) does not fit in 16 MiB: the
+/// error says out of memory in its kind, not only in its message, so the C layer returns
+/// OUT_OF_MEMORY; a small index is then built in the same limited process. Before: a message
+/// that `PreparedTarget::new` reported as INVALID_ARGUMENT.
+#[test]
+fn a_kd_tree_that_does_not_fit_is_out_of_memory() {
+    let stdout = run_child("child_kd_tree_does_not_fit", 16 * MIB);
+    assert!(
+        stdout.contains("big: OutOfMemory(") && stdout.contains("small: 3 points"),
+        "{stdout}"
+    );
+}
+
+#[test]
+#[ignore = "run by a_kd_tree_that_does_not_fit_is_out_of_memory in a limited child"]
+fn child_kd_tree_does_not_fit() {
+    let Some(budget) = child_budget() else {
+        return;
+    };
+    // Zeroed pages that are never written: address space, not memory.
+    let points = vec![[0.0f64; 3]; 24_000_000];
+    limit_address_space_to(budget);
+    let error = sie::nn::NearestNeighbours::new(&points).err().unwrap();
+    println!("big: {error:?}");
+    let message = error.to_string();
+    assert!(
+        message.contains("out of memory") && message.contains("nearest-neighbour index"),
+        "{message}"
+    );
+    let small = sie::nn::NearestNeighbours::new(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).unwrap();
+    println!("small: {} points", small.len());
 }
 
 /// 1024 worker threads (the documented maximum) when the address space has room for a few

@@ -9,7 +9,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use nalgebra::Matrix4;
 use sie::memory::{
     cloud_registration_bytes, correspondence_registration_bytes, estimate_bytes, prepared_registration_bytes,
+    prepared_target_bytes, target_normals_bytes,
 };
+use sie::nn::NearestNeighbours;
+use sie::normals::estimate_normals_at_data_scale;
+use sie::parallel::Workers;
 use sie::synthetic::{paper_simulation, room_scene};
 use sie::{
     Hooks, Metric, NoiseModel, NonFinite, Point, PrepareOptions, PreparedTarget, RegistrationConfig,
@@ -124,7 +128,8 @@ fn working_set_bounds_cover_the_measured_peaks() {
                     worst = worst.max(use_of_bound);
 
                     // Onto a target prepared beforehand (its normals not estimated yet): the
-                    // registration's own peak.
+                    // registration's own peak, with point-to-plane the normals it sets up (12 B
+                    // a target point) and those it estimates.
                     let prepared =
                         PreparedTarget::new(target, None, &PrepareOptions::from_config(&config)).unwrap();
                     let bound = prepared_registration_bytes(ns, nt);
@@ -186,4 +191,150 @@ fn working_set_bounds_cover_the_measured_peaks() {
         estimate_bytes(residuals.len())
     );
     assert!(peak <= estimate_bytes(residuals.len()));
+
+    preparing_targets(&scene.target, &grid_target);
+    estimating_all_normals();
+}
+
+/// `cloud` in the shape that costs `PreparedTarget::new` most: every 7th point NaN (skipped:
+/// a copy of the kept points), every 5th an exact copy of the one before (the kd-tree's
+/// duplicate table) and all of it beyond the safe range (a copy in other units); normals
+/// [0, 0, 1], NaN at the NaN points.
+fn costly_target(cloud: &[Point]) -> (Vec<Point>, Vec<Point>) {
+    let mut points: Vec<Point> = cloud.iter().map(|p| p.map(|c| c * 1e40)).collect();
+    let mut normals = vec![[0.0, 0.0, 1.0]; points.len()];
+    for i in 1..points.len() {
+        if i % 7 == 0 {
+            points[i] = [f64::NAN; 3];
+            normals[i] = [f64::NAN; 3];
+        } else if i % 5 == 0 {
+            points[i] = points[i - 1];
+        }
+    }
+    (points, normals)
+}
+
+/// `prepared_target_bytes` against the peak of `PreparedTarget::new`, with and without given
+/// normals, as given and in its costliest shape.
+fn preparing_targets(room: &[Point], grid: &[Point]) {
+    let mut worst = 0.0f64;
+    for (shape, cloud) in [("room", room), ("grid", grid)] {
+        let (costly, costly_normals) = costly_target(cloud);
+        let plain_normals = vec![[0.0, 0.0, 1.0]; cloud.len()];
+        for (variant, points, normals, non_finite) in [
+            ("as given", cloud, &plain_normals, NonFinite::Reject),
+            (
+                "skipped, duplicated, far",
+                &costly[..],
+                &costly_normals,
+                NonFinite::Skip,
+            ),
+        ] {
+            for (n, with_normals) in [(6_000, false), (60_000, false), (6_000, true), (60_000, true)] {
+                let (points, normals) = (&points[..n], &normals[..n]);
+                let options = PrepareOptions {
+                    non_finite,
+                    ..PrepareOptions::default()
+                };
+                let given = with_normals.then_some(normals);
+                let bound = prepared_target_bytes(points.len(), with_normals);
+                let peak = peak_of(bound, || {
+                    drop(PreparedTarget::new(points, given, &options).unwrap());
+                });
+                let use_of_bound = peak as f64 / bound as f64;
+                println!(
+                    "prepare {shape} {variant}, normals {with_normals}, {} points: peak {peak} B ({:.1} B a point), \
+                     bound {bound} B ({:.0} %)",
+                    points.len(),
+                    peak as f64 / points.len() as f64,
+                    100.0 * use_of_bound
+                );
+                assert!(
+                    peak <= bound,
+                    "prepare {shape} {variant} {n} {with_normals}: {peak} > {bound}"
+                );
+                worst = worst.max(use_of_bound);
+            }
+        }
+    }
+    assert!(
+        worst > 0.6,
+        "the tightest target uses only {:.0} % of its bound",
+        100.0 * worst
+    );
+}
+
+/// A 4 m × 4 m plane of `n` points with ±`noise` (hashed, uniform): dense enough for its normals
+/// to come from a thinned copy.
+fn noisy_plane(n: usize, noise: f64) -> Vec<Point> {
+    // splitmix64's finaliser: a well-mixed hash of the index.
+    let unit = |i: usize, salt: u64| {
+        let mut x = (i as u64) ^ (salt << 40);
+        x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        (x ^ (x >> 31)) as f64 / u64::MAX as f64
+    };
+    (0..n)
+        .map(|i| {
+            [
+                4.0 * unit(i, 1),
+                4.0 * unit(i, 2),
+                noise * (2.0 * unit(i, 3) - 1.0),
+            ]
+        })
+        .collect()
+}
+
+/// `target_normals_bytes` against the peak of `estimate_all_normals` on targets whose normals
+/// are not set up yet, thinned (the room, the noisy plane) or not (the grid), each several
+/// times the block the normals are estimated in.
+fn estimating_all_normals() {
+    const N: usize = 400_000;
+    let room = room_scene(N, 0.01, 1).target;
+    let (grid, plane, noisier) = (grid(N, 0.0), noisy_plane(N, 0.0035), noisy_plane(N, 0.02));
+    let mut worst = 0.0f64;
+    let mut thinned = false;
+    for (shape, cloud) in [
+        ("room", &room),
+        ("grid", &grid),
+        ("plane, 3.5 mm noise", &plane),
+        ("plane, 2 cm noise", &noisier),
+    ] {
+        let workers = Workers::new(2).unwrap();
+        let (_, factor) =
+            estimate_normals_at_data_scale(cloud, &NearestNeighbours::new(cloud).unwrap(), 10, &workers);
+        thinned |= factor > 1;
+        let target = PreparedTarget::new(cloud, None, &PrepareOptions::default()).unwrap();
+        let bound = target_normals_bytes(cloud.len());
+        let peak = peak_of(bound, || {
+            target.estimate_all_normals(2).unwrap();
+        });
+        let use_of_bound = peak as f64 / bound as f64;
+        println!(
+            "normals of {shape} ({} points, thinning 1 in {factor}): peak {peak} B ({:.1} B a point), bound {bound} B \
+             ({:.0} %)",
+            cloud.len(),
+            peak as f64 / cloud.len() as f64,
+            100.0 * use_of_bound
+        );
+        assert!(peak <= bound, "normals of {shape}: {peak} > {bound}");
+        worst = worst.max(use_of_bound);
+        // Once estimated, a second call asks for (and needs) no more than a block's memory.
+        let again = peak_of(target_normals_bytes(0), || {
+            target.estimate_all_normals(2).unwrap();
+        });
+        assert!(
+            again <= target_normals_bytes(0),
+            "normals of {shape} again: {again}"
+        );
+    }
+    assert!(
+        thinned,
+        "no target was thinned: the thinned copies are not measured"
+    );
+    assert!(
+        worst > 0.6,
+        "the tightest normals use only {:.0} % of their bound",
+        100.0 * worst
+    );
 }

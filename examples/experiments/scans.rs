@@ -260,7 +260,7 @@ pub fn bunny_pairs(data: &Path) -> Result<(Vec<PairCase>, Vec<LeftOut>), String>
     for (file, pose) in &poses {
         let cloud = read_cloud(&folder.join(file))?;
         let name = file.trim_end_matches(".ply").to_string();
-        let index = NearestNeighbours::new(&cloud.points)?;
+        let index = NearestNeighbours::new(&cloud.points).map_err(|e| e.to_string())?;
         scans.push((name, *pose, Arc::new(cloud.points), index));
     }
     let mut cases = Vec::new();
@@ -300,7 +300,7 @@ pub fn bunny_pairs(data: &Path) -> Result<(Vec<PairCase>, Vec<LeftOut>), String>
     let bun4 = read_cloud(&pcl.join("bun4.pcd"))?.points;
     // bun0/bun4 are subsampled bun000/bun045; the README prefers the conf-derived matrix.
     let ground_truth = pose("bun045.ply")?.try_inverse().expect("rigid") * pose("bun000.ply")?;
-    let index = NearestNeighbours::new(&bun4)?;
+    let index = NearestNeighbours::new(&bun4).map_err(|e| e.to_string())?;
     let mut settings = pcl_bunny_settings();
     settings.name = "pcl-test-bunny";
     cases.push(PairCase {
@@ -336,7 +336,7 @@ pub fn lidar_pair(data: &Path) -> Result<PairCase, String> {
     let source = read_cloud(&folder.join("source.ply"))?.points;
     let target = read_cloud(&folder.join("target.ply"))?.points;
     let ground_truth = sie::io::read_transform(&folder.join("T_target_source.txt"))?;
-    let index = NearestNeighbours::new(&target)?;
+    let index = NearestNeighbours::new(&target).map_err(|e| e.to_string())?;
     Ok(PairCase {
         overlap: overlap_within(&source, &index, &ground_truth, 0.1),
         settings: lidar_settings(),
@@ -358,7 +358,7 @@ pub fn room_pair(data: &Path) -> Result<PairCase, String> {
     let target = read_cloud(&folder.join("room_scan1.pcd"))?.points;
     let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("results/room_reference.txt");
     let ground_truth = sie::io::read_transform(&reference)?;
-    let index = NearestNeighbours::new(&target)?;
+    let index = NearestNeighbours::new(&target).map_err(|e| e.to_string())?;
     Ok(PairCase {
         overlap: overlap_within(&source, &index, &ground_truth, 0.1),
         settings: room_settings(),
@@ -415,7 +415,7 @@ pub fn depth_pairs(data: &Path) -> Result<Vec<PairCase>, String> {
         for i in 0..frames.len() - 1 {
             let j = i + 1;
             let ground_truth = poses[i].try_inverse().expect("rigid") * poses[j];
-            let index = NearestNeighbours::new(&frames[i])?;
+            let index = NearestNeighbours::new(&frames[i]).map_err(|e| e.to_string())?;
             let mut depths: Vec<f64> = frames[i].iter().chain(frames[j].iter()).map(|p| p[2]).collect();
             let median = sie_median(&mut depths);
             cases.push(PairCase {

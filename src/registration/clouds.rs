@@ -115,7 +115,7 @@ fn prepare_for(
         memory::cloud_registration_bytes(source.len(), target.len()),
         "the registration of these clouds",
     )?;
-    PreparedTarget::new(target, target_normals, &PrepareOptions::from_config(config))
+    PreparedTarget::new_within_checked_memory(target, target_normals, &PrepareOptions::from_config(config))
 }
 
 /// ICP of `source` onto a prepared target: `register_clouds` without building the target's

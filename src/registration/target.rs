@@ -16,6 +16,7 @@ use super::units::Units;
 use crate::error::Error;
 use crate::geometry::is_finite;
 use crate::median::median;
+use crate::memory::{self, MemoryError, try_vec};
 use crate::nn::NearestNeighbours;
 use crate::normals::NormalScale;
 use crate::parallel::Workers;
@@ -23,6 +24,10 @@ use crate::point::{NonFinite, Point};
 
 /// Indices are u32 with u32::MAX reserved for "no match".
 pub(crate) const NO_MATCH: u32 = u32::MAX;
+
+/// Normals `estimate_all_normals` estimates at a time (52 bytes each while it runs; the fixed
+/// part of `memory::target_normals_bytes`).
+const NORMALS_BLOCK: usize = 1 << 16;
 
 /// How a target is prepared.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -166,8 +171,28 @@ impl PreparedTarget {
     /// Errors: fewer than 3 (finite) points, a non-finite coordinate or normal (unless
     /// [`NonFinite::Skip`]), a normal count that differs from the point count, a finite normal
     /// that is neither of unit length (within [`NORMAL_LENGTH_TOLERANCE`](crate::NORMAL_LENGTH_TOLERANCE)) nor 0 0 0, a bad
-    /// `normal_neighbours`, more than u32::MAX − 1 points.
+    /// `normal_neighbours`, more than u32::MAX − 1 points; not enough memory for the
+    /// preparation ([`Error::OutOfMemory`], asked for before it starts).
     pub fn new(target: &[Point], normals: Option<&[Point]>, options: &PrepareOptions) -> Result<Self, Error> {
+        Self::build(target, normals, options, true)
+    }
+
+    /// [`PreparedTarget::new`] for `register_clouds`, whose up-front memory check covers the
+    /// preparation already.
+    pub(crate) fn new_within_checked_memory(
+        target: &[Point],
+        normals: Option<&[Point]>,
+        options: &PrepareOptions,
+    ) -> Result<Self, Error> {
+        Self::build(target, normals, options, false)
+    }
+
+    fn build(
+        target: &[Point],
+        normals: Option<&[Point]>,
+        options: &PrepareOptions,
+        check_memory: bool,
+    ) -> Result<Self, Error> {
         require_normal_neighbours(options.normal_neighbours)?;
         if let Some(normals) = normals {
             if normals.len() != target.len() {
@@ -179,29 +204,43 @@ impl PreparedTarget {
             }
             require_unit_normals("target normals", normals)?;
         }
+        if check_memory {
+            // Asked for up front: the kd-tree (and the unit conversion) allocate infallibly, so a
+            // memory limit is an error here, not an abort part-way.
+            memory::ensure_available(
+                memory::prepared_target_bytes(target.len(), normals.is_some()),
+                "preparing this target",
+            )?;
+        }
         let kept = Skip {
             non_finite: options.non_finite,
             origin: options.skip_origin,
         }
         .kept_indices(target);
-        let pick = |points: &[Point]| -> Vec<Point> {
+        let pick = |points: &[Point], what: &str| -> Result<Vec<Point>, MemoryError> {
+            let mut picked = try_vec(kept.as_ref().map_or(points.len(), Vec::len), what)?;
             match &kept {
-                Some(kept) => kept.iter().map(|&i| points[i as usize]).collect(),
-                None => points.to_vec(),
+                Some(kept) => picked.extend(kept.iter().map(|&i| points[i as usize])),
+                None => picked.extend_from_slice(points),
             }
+            Ok(picked)
         };
         // Copies only when points are dropped.
-        let kept_points = kept.as_ref().map(|_| pick(target));
+        let kept_points = match kept {
+            Some(_) => Some(pick(target, "the target's kept points")?),
+            None => None,
+        };
         let points = kept_points.as_deref().unwrap_or(target);
         require_points("target", points.len(), 3)?;
         require_finite("target", points)?;
         let kept_normals: Option<Vec<Point>> = match (normals, options.non_finite) {
-            (Some(normals), NonFinite::Skip) => Some(
-                pick(normals)
-                    .into_iter()
-                    .map(|n| if is_finite(&n) { n } else { [0.0; 3] })
-                    .collect(),
-            ),
+            (Some(normals), NonFinite::Skip) => {
+                let mut picked = pick(normals, "the target's kept normals")?;
+                for n in picked.iter_mut().filter(|n| !is_finite(n)) {
+                    *n = [0.0; 3];
+                }
+                Some(picked)
+            }
             (Some(normals), NonFinite::Reject) => {
                 require_finite("target normals", normals)?;
                 None
@@ -222,21 +261,27 @@ impl PreparedTarget {
         let normalised = (!units.is_identity()).then(|| units.points(points));
         let points = normalised.as_deref().unwrap_or(points);
         let started = Instant::now();
-        let mut order: Vec<u32> = (0..points.len() as u32).collect();
-        sort_along_curve(points, &mut order);
-        let in_order =
-            |values: &[Point]| -> Vec<Point> { order.iter().map(|&i| values[i as usize]).collect() };
-        let sorted = in_order(points);
-        let index = NearestNeighbours::new(&sorted).map_err(Error::InvalidArgument)?;
-        let index_seconds = started.elapsed().as_secs_f64();
+        let mut order: Vec<u32> = try_vec(points.len(), "the target's curve order")?;
+        order.extend(0..points.len() as u32);
+        try_sort_along_curve(points, &mut order)?;
+        let in_order = |values: &[Point], what: &str| -> Result<Vec<Point>, MemoryError> {
+            let mut sorted = try_vec(order.len(), what)?;
+            sorted.extend(order.iter().map(|&i| values[i as usize]));
+            Ok(sorted)
+        };
+        let sorted = in_order(points, "the target points in curve order")?;
         let normals = match normals {
             Some(given) => {
-                let normals = in_order(given);
+                let normals = in_order(given, "the target normals in curve order")?;
                 let any = normals.iter().any(|n| *n != [0.0; 3]);
                 TargetNormals::Given { normals, any }
             }
             None => TargetNormals::Estimated(Box::default()),
         };
+        // The copies in the caller's order are not needed once sorted: freed before the tree.
+        drop((kept_points, kept_normals, normalised));
+        let index = NearestNeighbours::new(&sorted)?;
+        let index_seconds = started.elapsed().as_secs_f64();
         Ok(PreparedTarget {
             points: sorted,
             order,
@@ -287,11 +332,27 @@ impl PreparedTarget {
     /// e.g. for a map prepared in the background. Registrations otherwise estimate the normals
     /// they reach, which is less work when they reach only part of the target. Returns the
     /// seconds spent. Results are the same either way, bit for bit.
+    ///
+    /// Errors: more than 1024 threads ([`Error::InvalidArgument`]); not enough memory for the
+    /// normals ([`Error::OutOfMemory`], asked for before any is estimated; the target is
+    /// unchanged and stays usable).
     pub fn estimate_all_normals(&self, threads: usize) -> Result<f64, Error> {
         let workers = Workers::new(threads).map_err(Error::InvalidArgument)?;
         let started = Instant::now();
-        if !matches!(self.normals, TargetNormals::Given { .. }) {
-            self.ensure_normals(0..self.points.len() as u32, &workers);
+        if let TargetNormals::Estimated(cell) = &self.normals {
+            let n = self.points.len();
+            // Asked for up front: the normals and the scale's thinned copies and kd-trees are
+            // allocated infallibly. Once set up, only a block's working memory is left to need.
+            let needing = if cell.get().is_some() { 0 } else { n };
+            memory::ensure_available(
+                memory::target_normals_bytes(needing),
+                "estimating this target's normals",
+            )?;
+            // In blocks, so that the working memory is a block's, not the target's.
+            for start in (0..n).step_by(NORMALS_BLOCK) {
+                let end = n.min(start + NORMALS_BLOCK);
+                self.ensure_normals(start as u32..end as u32, &workers);
+            }
         }
         Ok(started.elapsed().as_secs_f64())
     }
@@ -435,6 +496,18 @@ impl PreparedTarget {
 /// Reorders `indices` along a Morton (Z-order) curve over the points' bounding box (21 bits
 /// per axis); ties keep index order, so the result is deterministic.
 pub(crate) fn sort_along_curve(points: &[Point], indices: &mut [u32]) {
+    sort_with(points, indices, Vec::with_capacity(indices.len()));
+}
+
+/// [`sort_along_curve`] with its working memory (16 bytes an index) allocated fallibly.
+fn try_sort_along_curve(points: &[Point], indices: &mut [u32]) -> Result<(), MemoryError> {
+    let keyed = try_vec(indices.len(), "sorting the target along its curve")?;
+    sort_with(points, indices, keyed);
+    Ok(())
+}
+
+/// [`sort_along_curve`] in `keyed`, an empty buffer with room for every index.
+fn sort_with(points: &[Point], indices: &mut [u32], mut keyed: Vec<(u64, u32)>) {
     let (mut low, mut high) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for &i in indices.iter() {
         for axis in 0..3 {
@@ -456,7 +529,7 @@ pub(crate) fn sort_along_curve(points: &[Point], indices: &mut [u32]) {
     };
     // Keys made unique by the index: an unstable sort gives the one order, and sorting 16-byte
     // pairs needs less memory than a cached-key sort (24 bytes a point; 240 MB at 10 M).
-    let mut keyed: Vec<(u64, u32)> = indices.iter().map(|&i| (key(i), i)).collect();
+    keyed.extend(indices.iter().map(|&i| (key(i), i)));
     keyed.sort_unstable();
     for (slot, (_, i)) in indices.iter_mut().zip(keyed) {
         *slot = i;
@@ -529,6 +602,26 @@ mod tests {
             assert_eq!(
                 lazy.normal(t).map(f64::to_bits),
                 eager.normal(t).map(f64::to_bits),
+                "target {t}"
+            );
+        }
+    }
+
+    /// All normals at once in blocks (a target of more than one block) against one batch of
+    /// every point, as registrations estimate them: the same bits.
+    #[test]
+    fn normals_estimated_in_blocks_equal_one_batch() {
+        let scene = crate::synthetic::room_scene(NORMALS_BLOCK + 5_000, 0.01, 5);
+        let batch = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        let blocks = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        let n = batch.indexed_len();
+        assert!(n > NORMALS_BLOCK, "{n} points: one block");
+        batch.ensure_normals(0..n as u32, &Workers::new(2).unwrap());
+        blocks.estimate_all_normals(2).unwrap();
+        for t in 0..n {
+            assert_eq!(
+                blocks.normal(t).map(f64::to_bits),
+                batch.normal(t).map(f64::to_bits),
                 "target {t}"
             );
         }
