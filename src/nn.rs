@@ -31,6 +31,13 @@ const UNSCALED_MAX_EXPONENT: i32 = 64;
 /// point is decided by the direction alone to well below f64 resolution (the distances differ
 /// by less than 2^-400 relative), and the distance reported is the query's own length.
 const FAR_QUERY: f64 = 3.273_390_607_896_142e150; // 2^500
+/// A cloud whose largest coordinate is more than 2^SPAN_EXPONENTS times its typical one
+/// (garbage points far out among measurements) cannot be scaled by its largest coordinate: the
+/// typical points' squared distances would underflow to 0 and every match among them would be
+/// arbitrary. Such a cloud is scaled by its typical magnitude instead, and the far points are
+/// held clamped to ±FAR_QUERY per coordinate: no query near the cloud can have them nearest,
+/// and a query out there is moved onto FAR_QUERY anyway.
+const SPAN_EXPONENTS: i32 = 400;
 
 /// k-d tree over a cloud; query results are indices into the slice it was built from.
 ///
@@ -49,6 +56,8 @@ pub struct NearestNeighbours {
     len: usize,
     /// Tree coordinates = input coordinates × scale (a power of two, 1 for ordinary clouds).
     scale: f64,
+    /// Tree coordinates are clamped to ±FAR_QUERY (see [`SPAN_EXPONENTS`]).
+    clamped: bool,
     /// Which input points sit at each tree location; `None` when all are distinct (the tree's
     /// items are then the input indices themselves).
     locations: Option<Locations>,
@@ -98,23 +107,27 @@ impl NearestNeighbours {
                 points[bad]
             )));
         }
-        let scale = tree_scale(points);
+        let TreeFrame { scale, clamped } = tree_frame(points);
+        let in_tree = move |p: &Point, axis: usize| {
+            let c = p[axis] * scale;
+            if clamped {
+                c.clamp(-FAR_QUERY, FAR_QUERY)
+            } else {
+                c
+            }
+        };
         let locations = distinct_locations(points)?;
         let builder = Tree::builder().with_serial_construction();
         let tree = match &locations {
-            None if scale == 1.0 => builder.build_from_slice(points),
-            None => builder.build_from_source(points, |p: &Point, axis| p[axis] * scale, |i, _| i as u32),
+            None if scale == 1.0 && !clamped => builder.build_from_slice(points),
+            None => builder.build_from_source(points, in_tree, |i, _| i as u32),
             Some(locations) => {
                 // The first member of each location stands for it.
                 let first = |l: usize| points[locations.members[locations.offsets[l] as usize] as usize];
                 let count = locations.offsets.len() - 1;
                 let mut representatives: Vec<Point> = try_with_capacity(count)?;
                 representatives.extend((0..count).map(first));
-                builder.build_from_source(
-                    &representatives,
-                    |p: &Point, axis| p[axis] * scale,
-                    |l, _| l as u32,
-                )
+                builder.build_from_source(&representatives, in_tree, |l, _| l as u32)
             }
         }
         .map_err(|e| Error::InvalidArgument(format!("nearest-neighbour index: {e}")))?;
@@ -122,6 +135,7 @@ impl NearestNeighbours {
             tree,
             len: points.len(),
             scale,
+            clamped,
             locations,
         })
     }
@@ -221,7 +235,10 @@ impl NearestNeighbours {
         };
         let distance = |squared: f64| far_distance.unwrap_or_else(|| self.input_distance(squared));
         let nearest = distance(first.distance);
-        let second = if self.multiplicity(first.item) > 1 {
+        // Out where clamped points may be nearest, their distances are not the true ones: no
+        // margin is claimed there (the caller queries again).
+        let near_clamped = self.clamped && first.distance >= (0.5 * FAR_QUERY) * (0.5 * FAR_QUERY);
+        let second = if self.multiplicity(first.item) > 1 || near_clamped {
             nearest
         } else {
             found.get(1).map_or(f64::INFINITY, |r| distance(r.distance))
@@ -259,19 +276,48 @@ impl NearestNeighbours {
     }
 }
 
-/// The power of two the tree's coordinates are multiplied by (see [`UNSCALED_MAX_EXPONENT`]).
-fn tree_scale(points: &[Point]) -> f64 {
-    let largest = points.iter().flatten().fold(0.0f64, |m, c| m.max(c.abs()));
+/// How the tree holds a cloud's coordinates.
+struct TreeFrame {
+    /// The power of two they are multiplied by (see [`UNSCALED_MAX_EXPONENT`]).
+    scale: f64,
+    /// Whether they are then clamped to ±FAR_QUERY (see [`SPAN_EXPONENTS`]).
+    clamped: bool,
+}
+
+/// The frame of a cloud: scaled by its largest coordinate, or by its typical one when the
+/// largest is far beyond it.
+fn tree_frame(points: &[Point]) -> TreeFrame {
+    let magnitude = |p: &Point| p.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    let largest = points.iter().map(magnitude).fold(0.0f64, f64::max);
     if largest == 0.0 {
-        return 1.0;
+        return TreeFrame {
+            scale: 1.0,
+            clamped: false,
+        };
     }
     // frexp: largest = m · 2^e with m in [0.5, 1).
-    let exponent = exponent_of(largest);
-    if exponent.abs() <= UNSCALED_MAX_EXPONENT {
-        return 1.0;
+    let mut exponent = exponent_of(largest);
+    // The median non-zero magnitude of at most 1024 evenly strided points: robust to a few far
+    // points, and exact zeros (invalid depth pixels) say nothing of the scale.
+    let stride = points.len().div_ceil(1024).max(1);
+    let mut sample: Vec<f64> = points
+        .iter()
+        .step_by(stride)
+        .map(magnitude)
+        .filter(|m| *m > 0.0)
+        .collect();
+    let typical = crate::median::median(&mut sample);
+    let clamped = typical.is_some_and(|typical| exponent - exponent_of(typical) > SPAN_EXPONENTS);
+    if clamped {
+        exponent = exponent_of(typical.unwrap_or(largest));
     }
-    // 2^-e, within the normal range (a subnormal largest coordinate ends a little below 0.5).
-    power_of_two((-exponent).clamp(-1022, 1023))
+    let scale = if exponent.abs() <= UNSCALED_MAX_EXPONENT {
+        1.0
+    } else {
+        // 2^-e, within the normal range (a subnormal coordinate ends a little below 0.5).
+        power_of_two((-exponent).clamp(-1022, 1023))
+    };
+    TreeFrame { scale, clamped }
 }
 
 /// e with x = m · 2^e, m in [0.5, 1), for finite x > 0.
@@ -609,6 +655,37 @@ mod tests {
                 };
                 assert_eq!(distances(&out), distances(&expected), "2^{exponent}");
             }
+        }
+    }
+
+    /// A few garbage points far out (1e200, ±f64::MAX) among a unit cloud: queries near the
+    /// cloud get the answers of the cloud alone, bit for bit. Scaled by the largest coordinate,
+    /// the cloud's squared distances underflowed to 0 and every answer was arbitrary.
+    #[test]
+    fn far_garbage_points_leave_the_cloud_searched_exactly() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(17);
+        let unit = random_points(&mut rng, 3000, 1.0);
+        let queries = random_points(&mut rng, 300, 1.5);
+        let reference = NearestNeighbours::new(&unit).unwrap();
+        for far in [[1e200, 0.5, 0.5], [f64::MAX, -f64::MAX, 0.0], [0.1, 0.2, -3e300]] {
+            let mut points = unit.clone();
+            points.extend([far, far.map(|c| -c)]);
+            let index = NearestNeighbours::new(&points).unwrap();
+            let (mut out, mut expected) = (Vec::new(), Vec::new());
+            for q in &queries {
+                assert_eq!(index.nearest_one(q), reference.nearest_one(q), "{far:?}");
+                assert_eq!(index.nearest_two(q), reference.nearest_two(q), "{far:?}");
+                index.nearest_k(q, 8, &mut out);
+                reference.nearest_k(q, 8, &mut expected);
+                assert_eq!(out, expected, "{far:?}");
+            }
+            // Out there, a query finds something and claims no margin (its distances there
+            // are not exact).
+            let (i, first, second) = index.nearest_two(&far.map(|c| c * 0.5));
+            assert!(
+                i < points.len() && first == second,
+                "{far:?}: {i} {first} {second}"
+            );
         }
     }
 

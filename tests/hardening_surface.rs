@@ -8,7 +8,7 @@ use nalgebra::Matrix4;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use sie::ffi::*;
-use sie::synthetic::paper_simulation;
+use sie::synthetic::{paper_simulation, room_scene};
 
 /// An owned context freed on drop.
 struct Context(*mut sie_context);
@@ -158,6 +158,129 @@ fn wide_per_column_matrices_keep_their_inliers() {
         assert!(
             highest_outlier < 0.01,
             "{cols} columns: an outlier row at P = {highest_outlier}"
+        );
+    }
+}
+
+impl Context {
+    /// ICP on double clouds (packed) from `init` (row-major 4×4, or the identity).
+    fn register(
+        &self,
+        source: &[[f64; 3]],
+        target: &[[f64; 3]],
+        init: Option<&[f64; 16]>,
+        out: &mut [f64; 16],
+    ) -> sie_status {
+        // SAFETY: packed arrays of the given counts; `init` NULL or 16 doubles; `out` holds 16.
+        unsafe {
+            sie_context_register_d(
+                self.0,
+                source.as_ptr().cast(),
+                source.len(),
+                0,
+                target.as_ptr().cast(),
+                target.len(),
+                0,
+                init.map_or(null(), |t| t.as_ptr()),
+                out.as_mut_ptr(),
+            )
+        }
+    }
+
+    fn set_metric(&self, metric: sie_metric) {
+        // SAFETY: live context.
+        assert_eq!(
+            unsafe { sie_context_set_metric(self.0, metric as u32) },
+            sie_status::Ok
+        );
+    }
+}
+
+/// Largest entry difference of a row-major 4×4 from a nalgebra matrix.
+fn difference(out: &[f64; 16], truth: &Matrix4<f64>) -> f64 {
+    (0..16)
+        .map(|k| (out[k] - truth[(k / 4, k % 4)]).abs())
+        .fold(0.0, f64::max)
+}
+
+/// One target point at x = 1e200 (or ±f64::MAX) among a room's: as if it were not there. The
+/// registration moves into units where the room spans about 1 and that point sits ~1e199
+/// out; the kd-tree then scaled every coordinate down by 2^-663, and the room's squared
+/// distances underflowed to 0: matches were arbitrary (before: OK, converged, metres off).
+#[test]
+fn one_target_point_far_out_changes_nothing() {
+    let scene = room_scene(3_000, 0.01, 1);
+    for metric in [sie_metric::PointToPoint, sie_metric::PointToPlane] {
+        let ctx = Context::new();
+        ctx.set_metric(metric);
+        let mut reference = [0.0; 16];
+        assert_eq!(
+            ctx.register(&scene.source, &scene.target, None, &mut reference),
+            sie_status::Ok
+        );
+        let reference_error = difference(&reference, &scene.t_target_source);
+        for far in [1e200, f64::MAX, -f64::MAX] {
+            let mut target = scene.target.clone();
+            target.push([far, 0.5, -far / 2.0]);
+            let mut out = [f64::NAN; 16];
+            let status = ctx.register(&scene.source, &target, None, &mut out);
+            let what = format!("{metric:?}, a target point at {far:e}");
+            assert_eq!(status, sie_status::Ok, "{what}: {}", ctx.last_error());
+            assert!(out.iter().all(|v| v.is_finite()), "{what}: {out:?}");
+            let error = difference(&out, &scene.t_target_source);
+            assert!(
+                error <= reference_error + 1e-3,
+                "{what}: error {error}, {reference_error} without it"
+            );
+            let summary = ctx.summary();
+            assert_eq!(
+                summary.verdict,
+                ctx_verdict_without(&scene, metric),
+                "{what}: {summary:?}"
+            );
+        }
+    }
+}
+
+/// The verdict the same registration gets without the far point.
+fn ctx_verdict_without(scene: &sie::synthetic::RoomScene, metric: sie_metric) -> u32 {
+    let ctx = Context::new();
+    ctx.set_metric(metric);
+    let mut out = [0.0; 16];
+    assert_eq!(
+        ctx.register(&scene.source, &scene.target, None, &mut out),
+        sie_status::Ok
+    );
+    ctx.summary().verdict
+}
+
+/// An initial guess that moves the source 1e300 away: nothing can match there. The result is
+/// finite (σ, β, the transform) and never GOOD. Before: point-to-plane returned β = ∞ and
+/// σ = 0 with a DOUBTFUL verdict.
+#[test]
+fn a_guess_astronomically_far_is_never_good_and_stays_finite() {
+    let scene = room_scene(800, 0.01, 1);
+    let mut guess = [0.0; 16];
+    for k in [0, 5, 10, 15] {
+        guess[k] = 1.0;
+    }
+    guess[3] = 1e300;
+    for metric in [sie_metric::PointToPoint, sie_metric::PointToPlane] {
+        let ctx = Context::new();
+        ctx.set_metric(metric);
+        let mut out = [f64::NAN; 16];
+        let status = ctx.register(&scene.source, &scene.target, Some(&guess), &mut out);
+        assert_eq!(status, sie_status::Ok, "{metric:?}: {}", ctx.last_error());
+        assert!(out.iter().all(|v| v.is_finite()), "{metric:?}: {out:?}");
+        let summary = ctx.summary();
+        assert!(
+            summary.sigma.iter().chain(&summary.beta).all(|v| v.is_finite()),
+            "{metric:?}: {summary:?}"
+        );
+        assert_ne!(
+            summary.verdict,
+            sie_verdict::Good as u32,
+            "{metric:?}: {summary:?}"
         );
     }
 }
