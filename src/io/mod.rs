@@ -7,6 +7,7 @@
 //!
 //! Writers: PCD (float32, as PCL stores clouds) and XYZ text; [`write_cloud`] picks one by
 //! extension.
+mod cloud;
 mod pcd;
 mod ply;
 #[cfg(test)]
@@ -15,33 +16,18 @@ mod xyz;
 
 use std::fmt::Display;
 use std::fs;
-use std::io::{BufWriter, Write};
 use std::path::Path;
 
 use nalgebra::Matrix4;
 
-use crate::geometry::{first_non_finite, is_finite};
 use crate::point::{NonFinite, Point};
+pub use cloud::CloudFile;
+use cloud::RawCloud;
 use pcd::parse_pcd;
 pub use pcd::{PcdEncoding, write_cloud_pcd};
 use ply::parse_ply;
 pub use xyz::write_cloud_xyz;
 use xyz::{parse_transform, parse_xyz};
-
-/// A cloud read from a file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CloudFile {
-    /// Coordinates in the file's units (read as f64).
-    pub points: Vec<Point>,
-    /// From `normal_x/normal_y/normal_z` or `nx/ny/nz` fields when the file has them; a
-    /// non-finite normal becomes `[0, 0, 0]` ("no normal", as `estimate_normals` gives).
-    pub normals: Option<Vec<Point>>,
-    /// Points dropped for a non-finite coordinate (only with [`NonFinite::Skip`]).
-    pub skipped_non_finite: usize,
-    /// What the reader noticed but could read past, one line each: a PCD file holding more
-    /// points than its header declares (read as declared, as PCL does, and said here).
-    pub warnings: Vec<String>,
-}
 
 /// Reads a `.pcd`, `.ply`, `.xyz` or `.txt` cloud; non-finite coordinates are an error.
 pub fn read_cloud(path: &Path) -> Result<CloudFile, String> {
@@ -148,18 +134,6 @@ fn lowercase_extension(path: &Path) -> String {
         .to_ascii_lowercase()
 }
 
-fn write_text(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<fs::File>) -> std::io::Result<()>,
-) -> Result<(), String> {
-    let result = fs::File::create(path).and_then(|file| {
-        let mut out = BufWriter::new(file);
-        body(&mut out)?;
-        out.flush()
-    });
-    result.map_err(|e| format!("{}: cannot write file: {e}", path.display()))
-}
-
 /// Library messages (ply-rs in particular) span lines; callers expect one.
 fn one_line(message: &dyn Display) -> String {
     message
@@ -170,84 +144,6 @@ fn one_line(message: &dyn Display) -> String {
 }
 
 type ParseFn = fn(&[u8]) -> Result<RawCloud, String>;
-
-/// Points and optional normals as parsed, before the non-finite policy.
-struct RawCloud {
-    points: Vec<Point>,
-    normals: Option<Vec<Point>>,
-    warnings: Vec<String>,
-}
-
-impl RawCloud {
-    fn finish(self, non_finite: NonFinite) -> Result<CloudFile, String> {
-        let RawCloud {
-            mut points,
-            mut normals,
-            warnings,
-        } = self;
-        if points.is_empty() {
-            return Err("the cloud has no points".into());
-        }
-        if let Some(normals) = normals.as_mut() {
-            for n in normals.iter_mut().filter(|n| !is_finite(n)) {
-                *n = [0.0; 3];
-            }
-        }
-        let total = points.len();
-        let Some(first_bad) = first_non_finite(&points) else {
-            return Ok(CloudFile {
-                points,
-                normals,
-                skipped_non_finite: 0,
-                warnings,
-            });
-        };
-        if non_finite == NonFinite::Reject {
-            let p = points[first_bad];
-            return Err(format!(
-                "point {} of {total} has a non-finite coordinate ({}, {}, {}); \
-                 invalid points can be skipped instead (NonFinite::Skip)",
-                first_bad + 1,
-                p[0],
-                p[1],
-                p[2]
-            ));
-        }
-        // In place: no second copy of a cloud that may fill memory.
-        if let Some(normals) = normals.as_mut() {
-            let mut finite = points.iter().map(is_finite);
-            normals.retain(|_| finite.next().unwrap_or(false));
-        }
-        points.retain(is_finite);
-        if points.is_empty() {
-            return Err(format!("all {total} points have a non-finite coordinate"));
-        }
-        Ok(CloudFile {
-            skipped_non_finite: total - points.len(),
-            points,
-            normals,
-            warnings,
-        })
-    }
-}
-
-/// Bytes per point of the cloud a reader builds: position and normal, and as much again for
-/// the file crate's own per-point records while it reads.
-const READ_BYTES_PER_POINT: u64 = 4 * size_of::<Point>() as u64;
-
-/// Asks for the memory a file's declared counts need before any of it is used.
-fn ensure_memory(bytes: u64, what: &str) -> Result<(), String> {
-    let bytes = usize::try_from(bytes).unwrap_or(usize::MAX);
-    crate::memory::ensure_available(bytes, what).map_err(|e| e.to_string())
-}
-
-/// Names under which a cloud's normal components appear.
-const NORMAL_FIELD_NAMES: [[&str; 3]; 2] = [["normal_x", "normal_y", "normal_z"], ["nx", "ny", "nz"]];
-
-/// Room for `count` points, the memory asked for first.
-fn try_points(count: usize) -> Result<Vec<Point>, String> {
-    crate::memory::try_vec(count, &format!("{count} points")).map_err(|e| e.to_string())
-}
 
 #[cfg(test)]
 mod tests {

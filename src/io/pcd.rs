@@ -5,7 +5,9 @@ use std::path::Path;
 
 use pcd_rs::{DynReader, DynRecord, Field};
 
-use super::{NORMAL_FIELD_NAMES, READ_BYTES_PER_POINT, RawCloud, ensure_memory, try_points, write_text};
+use super::cloud::{
+    NORMAL_FIELD_NAMES, READ_BYTES_PER_POINT, RawCloud, ensure_memory, try_points, write_text,
+};
 use crate::point::Point;
 
 /// Largest accepted record (one point); far above any real layout, small enough that pcd-rs's

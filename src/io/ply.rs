@@ -3,7 +3,7 @@
 use ply_rs::parser::Parser;
 use ply_rs::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
-use super::{NORMAL_FIELD_NAMES, READ_BYTES_PER_POINT, RawCloud, ensure_memory, try_points};
+use super::cloud::{NORMAL_FIELD_NAMES, READ_BYTES_PER_POINT, RawCloud, ensure_memory, try_points};
 use crate::point::Point;
 
 /// One vertex as ply-rs reports it; other properties are ignored as they arrive.

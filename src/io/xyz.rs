@@ -4,7 +4,7 @@ use std::path::Path;
 
 use nalgebra::Matrix4;
 
-use super::{RawCloud, ensure_memory, write_text};
+use super::cloud::{RawCloud, ensure_memory, write_text};
 use crate::point::Point;
 
 /// Writes one `x y z` line per point (shortest text that reads back to the same f64).
