@@ -284,3 +284,79 @@ fn a_guess_astronomically_far_is_never_good_and_stays_finite() {
         );
     }
 }
+
+impl Context {
+    /// ICP onto a target prepared from `target` (double, packed, no normals) from `init`.
+    fn register_prepared(
+        &self,
+        source: &[[f64; 3]],
+        target: &[[f64; 3]],
+        init: Option<&[f64; 16]>,
+        out: &mut [f64; 16],
+    ) -> sie_status {
+        let mut prepared = null_mut();
+        // SAFETY: packed arrays of the given counts; `init` NULL or 16 doubles; `out` holds 16;
+        // the target is freed once, after its last use.
+        unsafe {
+            let status = sie_context_prepare_target_d(
+                self.0,
+                target.as_ptr().cast(),
+                target.len(),
+                0,
+                null(),
+                0,
+                &mut prepared,
+            );
+            assert_eq!(status, sie_status::Ok, "{}", self.last_error());
+            let status = sie_context_register_to_d(
+                self.0,
+                source.as_ptr().cast(),
+                source.len(),
+                0,
+                prepared,
+                init.map_or(null(), |t| t.as_ptr()),
+                out.as_mut_ptr(),
+            );
+            sie_target_free(prepared);
+            status
+        }
+    }
+}
+
+/// Clouds 1e-289 across and a guess moved 1e32 away: in the clouds' own units the guess lies
+/// beyond f64's range. The result is finite and never GOOD, directly and onto a prepared
+/// target. Before: OK with an infinite translation (found by the prepared-target fuzz target).
+#[test]
+fn a_guess_beyond_the_range_of_tiny_clouds_stays_finite() {
+    let scene = room_scene(400, 0.01, 2);
+    let tiny =
+        |points: &[[f64; 3]]| -> Vec<[f64; 3]> { points.iter().map(|p| p.map(|v| v * 1e-289)).collect() };
+    let (source, target) = (tiny(&scene.source), tiny(&scene.target));
+    let mut guess = [0.0; 16];
+    for k in [0, 5, 10, 15] {
+        guess[k] = 1.0;
+    }
+    guess[3] = 1e32;
+    guess[11] = -2e32;
+    for metric in [sie_metric::PointToPoint, sie_metric::PointToPlane] {
+        for prepared in [false, true] {
+            let ctx = Context::new();
+            ctx.set_metric(metric);
+            let mut out = [f64::NAN; 16];
+            let status = if prepared {
+                ctx.register_prepared(&source, &target, Some(&guess), &mut out)
+            } else {
+                ctx.register(&source, &target, Some(&guess), &mut out)
+            };
+            let case = format!("{metric:?}, prepared {prepared}");
+            assert_eq!(status, sie_status::Ok, "{case}: {}", ctx.last_error());
+            assert!(out.iter().all(|v| v.is_finite()), "{case}: {out:?}");
+            let summary = ctx.summary();
+            assert!(
+                summary.sigma.iter().chain(&summary.beta).all(|v| v.is_finite()),
+                "{case}: {summary:?}"
+            );
+            assert_ne!(summary.verdict, sie_verdict::Good as u32, "{case}: {summary:?}");
+        }
+    }
+}

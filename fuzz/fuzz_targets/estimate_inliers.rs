@@ -6,7 +6,9 @@ use libfuzzer_sys::fuzz_target;
 use sie::ffi::*;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&[settings, width, magnitude, copies], rest)) = data.split_first_chunk::<4>() else { return };
+    let Some((&[settings, width, magnitude, copies], rest)) = data.split_first_chunk::<4>() else {
+        return;
+    };
     let cols = 1 + width as usize;
     let scale = 2f64.powi(8 * i32::from(magnitude as i8));
     let mut values: Vec<f64> = rest
@@ -45,10 +47,17 @@ fuzz_target!(|data: &[u8]| {
         match status {
             sie_status::Ok => {
                 assert!(probabilities[..rows].iter().all(|p| (0.0..=1.0).contains(p)));
-                assert!(models[..count].iter().all(|m| m.sigma.is_finite() && m.alpha.is_finite()));
+                assert!(
+                    models[..count]
+                        .iter()
+                        .all(|m| m.sigma.is_finite() && m.alpha.is_finite())
+                );
             }
             sie_status::NonFiniteInput | sie_status::TooFewPoints | sie_status::InvalidArgument => {
-                assert!(probabilities.iter().all(|&p| p == -1.0), "outputs written on error");
+                assert!(
+                    probabilities.iter().all(|&p| p == -1.0),
+                    "outputs written on error"
+                );
             }
             other => panic!("unexpected status {other:?}"),
         }

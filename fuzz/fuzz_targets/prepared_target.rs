@@ -31,10 +31,13 @@ fn normals_of(points: &[[f64; 3]]) -> Vec<[f64; 3]> {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&[prep, reg, order, magnitude, split, neighbours], rest)) = data.split_first_chunk::<6>() else {
+    let Some((&[prep, reg, order, magnitude, split, neighbours], rest)) = data.split_first_chunk::<6>()
+    else {
         return;
     };
-    let Some((guess, rest)) = rest.split_first_chunk::<GUESS_BYTES>() else { return };
+    let Some((guess, rest)) = rest.split_first_chunk::<GUESS_BYTES>() else {
+        return;
+    };
     let guess = Guess::from_bytes(guess);
     let all = points(rest, magnitude);
     let cut = (split as usize * all.len() / 255).clamp(1.min(all.len()), all.len());
@@ -56,7 +59,12 @@ fuzz_target!(|data: &[u8]| {
     let cost = u32::from((reg >> 4) & 3);
     let starts = u32::from((reg >> 6) & 1);
     let mismatch = reg & 128 != 0;
-    let register_neighbours = prepare_neighbours + if mismatch { 1 + u32::from(neighbours >> 5) } else { 0 };
+    let register_neighbours = prepare_neighbours
+        + if mismatch {
+            1 + u32::from(neighbours >> 5)
+        } else {
+            0
+        };
     // What happens between.
     let first_metric = metric ^ u32::from(order & 1);
     let first_half = order & 2 != 0;
@@ -65,7 +73,11 @@ fuzz_target!(|data: &[u8]| {
     let max_iterations = if order & 128 != 0 { 20 } else { 3 };
 
     // What the library reads.
-    let target_seen = if target_f64 { target.to_vec() } else { as_f32(target) };
+    let target_seen = if target_f64 {
+        target.to_vec()
+    } else {
+        as_f32(target)
+    };
     // Rounded to float for either precision: `_with_normals` takes floats.
     let mut normals = as_f32(&normals_of(&target_seen));
     if order & 16 != 0 {
@@ -81,15 +93,25 @@ fuzz_target!(|data: &[u8]| {
             n[1] = f64::NAN;
         }
     }
-    let source_seen = if source_f64 { source.to_vec() } else { as_f32(source) };
+    let source_seen = if source_f64 {
+        source.to_vec()
+    } else {
+        as_f32(source)
+    };
 
     // Expected of the preparation, as documented.
-    let kept = |p: &[f64; 3]| (!skip_non_finite || p.iter().all(|v| v.is_finite())) && !(skip_origin && *p == [0.0; 3]);
+    let kept = |p: &[f64; 3]| {
+        (!skip_non_finite || p.iter().all(|v| v.is_finite())) && !(skip_origin && *p == [0.0; 3])
+    };
     let kept_count = target_seen.iter().filter(|p| kept(p)).count();
     let normals_ok = !with_normals
         || normals.iter().all(|n| {
             let length = n.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if n.iter().all(|v| v.is_finite()) { length == 0.0 || (length - 1.0).abs() <= 1e-3 } else { skip_non_finite }
+            if n.iter().all(|v| v.is_finite()) {
+                length == 0.0 || (length - 1.0).abs() <= 1e-3
+            } else {
+                skip_non_finite
+            }
         });
     let prepare_ok = kept_count >= 3 && (skip_non_finite || finite(&target_seen)) && normals_ok;
     // Point-to-plane has no normal to work with (the kept points' given normals are all 0 0 0).
@@ -108,9 +130,18 @@ fuzz_target!(|data: &[u8]| {
         sie_target_free(null_mut());
 
         let preparing = sie_context_new();
-        assert_eq!(sie_context_set_skip_non_finite(preparing, skip_non_finite), sie_status::Ok);
-        assert_eq!(sie_context_set_skip_origin(preparing, skip_origin), sie_status::Ok);
-        assert_eq!(sie_context_set_normal_neighbours(preparing, prepare_neighbours), sie_status::Ok);
+        assert_eq!(
+            sie_context_set_skip_non_finite(preparing, skip_non_finite),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_skip_origin(preparing, skip_origin),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_normal_neighbours(preparing, prepare_neighbours),
+            sie_status::Ok
+        );
         let untouched = NonNull::<sie_target>::dangling().as_ptr();
         let mut handle = untouched;
         let status = if target_f64 {
@@ -144,8 +175,10 @@ fuzz_target!(|data: &[u8]| {
         if status != sie_status::Ok {
             assert!(is_registration_error(status), "prepare: {status:?}");
             assert_eq!(handle, untouched, "out_target written on error");
-            assert!(!prepare_ok, "prepare refused a valid target: {status:?} {message}");
-            if std::env::var_os("STATS").is_some() { eprintln!("STAT prepare {status:?} normals={with_normals} {message}"); }
+            assert!(
+                !prepare_ok,
+                "prepare refused a valid target: {status:?} {message}"
+            );
             return;
         }
         assert!(prepare_ok, "prepare accepted an invalid target");
@@ -154,13 +187,22 @@ fuzz_target!(|data: &[u8]| {
 
         let ctx = sie_context_new();
         let configure = |ctx: *mut sie_context, skip: bool| {
-            assert_eq!(sie_context_set_skip_non_finite(ctx, skip_non_finite ^ skip), sie_status::Ok);
+            assert_eq!(
+                sie_context_set_skip_non_finite(ctx, skip_non_finite ^ skip),
+                sie_status::Ok
+            );
             assert_eq!(sie_context_set_skip_origin(ctx, skip_origin), sie_status::Ok);
-            assert_eq!(sie_context_set_normal_neighbours(ctx, register_neighbours), sie_status::Ok);
+            assert_eq!(
+                sie_context_set_normal_neighbours(ctx, register_neighbours),
+                sie_status::Ok
+            );
             assert_eq!(sie_context_set_threads(ctx, threads), sie_status::Ok);
             assert_eq!(sie_context_set_cost_function(ctx, cost, 0.05), sie_status::Ok);
             assert_eq!(sie_context_set_starts(ctx, starts), sie_status::Ok);
-            assert_eq!(sie_context_set_max_iterations(ctx, max_iterations), sie_status::Ok);
+            assert_eq!(
+                sie_context_set_max_iterations(ctx, max_iterations),
+                sie_status::Ok
+            );
         };
         configure(ctx, other_skip);
         let register_skips_non_finite = skip_non_finite ^ other_skip;
@@ -173,11 +215,27 @@ fuzz_target!(|data: &[u8]| {
             let status = if source_f64 {
                 let xyz = strided(source, point_padding, |v| v, f64::NAN);
                 let stride = stride_bytes::<f64>(point_padding);
-                sie_context_register_to_d(ctx, xyz.as_ptr(), source.len(), stride, handle, guess.as_ptr(), out.as_mut_ptr())
+                sie_context_register_to_d(
+                    ctx,
+                    xyz.as_ptr(),
+                    source.len(),
+                    stride,
+                    handle,
+                    guess.as_ptr(),
+                    out.as_mut_ptr(),
+                )
             } else {
                 let xyz = strided(source, point_padding, |v| v as f32, f32::NAN);
                 let stride = stride_bytes::<f32>(point_padding);
-                sie_context_register_to(ctx, xyz.as_ptr(), source.len(), stride, handle, guess.as_ptr(), out.as_mut_ptr())
+                sie_context_register_to(
+                    ctx,
+                    xyz.as_ptr(),
+                    source.len(),
+                    stride,
+                    handle,
+                    guess.as_ptr(),
+                    out.as_mut_ptr(),
+                )
             };
             let message = last_error(ctx);
             let source_read = !source.is_empty() && (register_skips_non_finite || finite(source));
@@ -211,32 +269,49 @@ fuzz_target!(|data: &[u8]| {
             (status, out)
         };
 
-        let first_source = if first_half { &source_seen[..source_seen.len() / 2] } else { &source_seen[..] };
+        let first_source = if first_half {
+            &source_seen[..source_seen.len() / 2]
+        } else {
+            &source_seen[..]
+        };
         let (first, _) = register(first_source, first_metric, &Guess::None, false);
         let mut previous = sie_summary::default();
-        if std::env::var_os("DBG").is_some() { let mut d = sie_summary::default(); sie_context_get_summary(ctx, &mut d); eprintln!("DBG first {first:?} {d:?}"); }
         if first == sie_status::Ok && warm {
             assert_eq!(sie_context_get_summary(ctx, &mut previous), sie_status::Ok);
             // A summary an SIE registration filled is a warm start when its model is in range
             // (a degenerate fit's sigma of 0 is not); a baseline's never.
             let status = sie_context_set_warm_start(ctx, &previous);
             let valid = sie && warm_start_valid(&previous);
-            assert_eq!(status, if valid { sie_status::Ok } else { sie_status::InvalidArgument }, "{previous:?}");
+            assert_eq!(
+                status,
+                if valid {
+                    sie_status::Ok
+                } else {
+                    sie_status::InvalidArgument
+                },
+                "{previous:?}"
+            );
             warm_set = status == sie_status::Ok;
         }
         if estimate {
             assert_eq!(sie_target_estimate_normals(handle, threads), sie_status::Ok);
-            assert_eq!(sie_target_estimate_normals(handle, 1025), sie_status::InvalidArgument);
+            assert_eq!(
+                sie_target_estimate_normals(handle, 1025),
+                sie_status::InvalidArgument
+            );
         }
         let (second, out) = register(&source_seen, metric, &guess, warm_set);
-        if std::env::var_os("STATS").is_some() { eprintln!("STAT second {second:?} warm={warm_set} mismatch={} metric={metric} normals={with_normals} tf64={target_f64} sf64={source_f64}", mismatch); }
         let second_fingerprint = (second == sie_status::Ok).then(|| fingerprint(ctx, &out, source.len()));
         sie_context_free(ctx);
 
         // The same registration without the target: on the same context settings (the target's
         // skips), the same arrays as the library read them.
         let comparable = !other_skip
-            && if with_normals { in_f32(&source_seen) && in_f32(&target_seen) } else { !(mismatch && metric == 1) };
+            && if with_normals {
+                in_f32(&source_seen) && in_f32(&target_seen)
+            } else {
+                !(mismatch && metric == 1)
+            };
         if comparable {
             let fresh = sie_context_new();
             configure(fresh, false);
@@ -275,10 +350,17 @@ fuzz_target!(|data: &[u8]| {
                 )
             };
             // Errors may come in another order; success may not differ.
-            assert_eq!(status == sie_status::Ok, second == sie_status::Ok, "prepared {second:?}, fresh {status:?}");
-            if std::env::var_os("STATS").is_some() { eprintln!("STAT compare second={second:?} fresh={status:?} normals={with_normals}"); }
+            assert_eq!(
+                status == sie_status::Ok,
+                second == sie_status::Ok,
+                "prepared {second:?}, fresh {status:?}"
+            );
             if let Some(expected) = second_fingerprint {
-                assert_eq!(fingerprint(fresh, &again, source.len()), expected, "not the fresh registration's result");
+                assert_eq!(
+                    fingerprint(fresh, &again, source.len()),
+                    expected,
+                    "not the fresh registration's result"
+                );
             }
             sie_context_free(fresh);
         }

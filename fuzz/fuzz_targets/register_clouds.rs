@@ -6,12 +6,15 @@ use libfuzzer_sys::fuzz_target;
 use sie::ffi::*;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&[settings, magnitude, copies, split], rest)) = data.split_first_chunk::<4>() else { return };
+    let Some((&[settings, magnitude, copies, split], rest)) = data.split_first_chunk::<4>() else {
+        return;
+    };
     let scale = 2f64.powi(8 * i32::from(magnitude as i8));
     let mut points: Vec<[f64; 3]> = rest
         .chunks_exact(12)
         .map(|c| {
-            let value = |k: usize| f64::from(f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap())) * scale;
+            let value =
+                |k: usize| f64::from(f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap())) * scale;
             [value(0), value(1), value(2)]
         })
         .collect();
@@ -54,7 +57,10 @@ fuzz_target!(|data: &[u8]| {
                 // The verdict, its evidence and the search: valid codes, never NaN or inf.
                 assert!((1..=3).contains(&summary.verdict), "{summary:?}");
                 assert!(summary.start <= 3 && summary.starts_run >= 1, "{summary:?}");
-                assert!((1..=summary.starts_run).contains(&summary.agreeing_starts), "{summary:?}");
+                assert!(
+                    (1..=summary.starts_run).contains(&summary.agreeing_starts),
+                    "{summary:?}"
+                );
                 for value in [
                     summary.significance,
                     summary.conditioning,
@@ -65,7 +71,12 @@ fuzz_target!(|data: &[u8]| {
                     assert!(value.is_finite() && value >= 0.0, "{summary:?}");
                 }
                 let mut matches = vec![0i64; source.len()];
-                let got = sie_context_get_correspondences(ctx, matches.as_mut_ptr(), matches.len(), std::ptr::null_mut());
+                let got = sie_context_get_correspondences(
+                    ctx,
+                    matches.as_mut_ptr(),
+                    matches.len(),
+                    std::ptr::null_mut(),
+                );
                 assert_eq!(got, sie_status::Ok);
                 assert!(matches.iter().all(|&t| (-1..target.len() as i64).contains(&t)));
             }

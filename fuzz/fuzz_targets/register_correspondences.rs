@@ -6,7 +6,9 @@ use libfuzzer_sys::fuzz_target;
 use sie::ffi::*;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&[settings, magnitude, copies], rest)) = data.split_first_chunk::<3>() else { return };
+    let Some((&[settings, magnitude, copies], rest)) = data.split_first_chunk::<3>() else {
+        return;
+    };
     // Coordinates scaled by 2^(8·magnitude as i8): the same geometry at any magnitude.
     let scale = 2f64.powi(8 * i32::from(magnitude as i8));
     let mut values: Vec<f64> = rest
@@ -55,7 +57,10 @@ fuzz_target!(|data: &[u8]| {
                 // The verdict, its evidence and the search: valid codes, never NaN or inf.
                 assert!((1..=3).contains(&summary.verdict), "{summary:?}");
                 assert!(summary.start <= 3 && summary.starts_run >= 1, "{summary:?}");
-                assert!((1..=summary.starts_run).contains(&summary.agreeing_starts), "{summary:?}");
+                assert!(
+                    (1..=summary.starts_run).contains(&summary.agreeing_starts),
+                    "{summary:?}"
+                );
                 for value in [
                     summary.significance,
                     summary.conditioning,

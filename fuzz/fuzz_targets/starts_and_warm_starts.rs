@@ -62,12 +62,17 @@ fn summary_from(bytes: &[u8; SUMMARY_BYTES], raw: bool) -> sie_summary {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&[settings, mode, warm, magnitude, split, regularizer], rest)) = data.split_first_chunk::<6>() else {
+    let Some((&[settings, mode, warm, magnitude, split, regularizer], rest)) = data.split_first_chunk::<6>()
+    else {
         return;
     };
-    let Some((guess, rest)) = rest.split_first_chunk::<GUESS_BYTES>() else { return };
+    let Some((guess, rest)) = rest.split_first_chunk::<GUESS_BYTES>() else {
+        return;
+    };
     let guess = Guess::from_bytes(guess);
-    let Some((summary_bytes, rest)) = rest.split_first_chunk::<SUMMARY_BYTES>() else { return };
+    let Some((summary_bytes, rest)) = rest.split_first_chunk::<SUMMARY_BYTES>() else {
+        return;
+    };
     let all = points(rest, magnitude);
 
     let metric = u32::from(settings & 1);
@@ -85,7 +90,10 @@ fuzz_target!(|data: &[u8]| {
 
     // Correspondences pair consecutive points; clouds split them.
     let (source, target): (Vec<[f64; 3]>, Vec<[f64; 3]>) = if correspondences {
-        (all.iter().step_by(2).copied().collect(), all.iter().skip(1).step_by(2).copied().collect())
+        (
+            all.iter().step_by(2).copied().collect(),
+            all.iter().skip(1).step_by(2).copied().collect(),
+        )
     } else {
         let cut = (split as usize * all.len() / 255).clamp(1.min(all.len()), all.len());
         (all[..cut].to_vec(), all[cut..].to_vec())
@@ -107,7 +115,10 @@ fuzz_target!(|data: &[u8]| {
             assert_eq!(status, sie_status::Ok);
         }
         if bad_starts {
-            assert_eq!(sie_context_set_starts(ctx, 2 + u32::from(split)), sie_status::InvalidArgument);
+            assert_eq!(
+                sie_context_set_starts(ctx, 2 + u32::from(split)),
+                sie_status::InvalidArgument
+            );
             assert!(!last_error(ctx).is_empty());
         }
         assert_eq!(sie_context_set_starts(ctx, starts), sie_status::Ok);
@@ -115,14 +126,20 @@ fuzz_target!(|data: &[u8]| {
         // A fixed initial beta (one run), or a refused value that leaves the setting alone.
         let mut fixed_beta = false;
         if regularizer != 0 {
-            let mut beta = [0.0, 1e-3, 0.05, 1.0, 1e3, -1.0, f64::NAN, f64::INFINITY][usize::from(regularizer & 7)];
+            let mut beta =
+                [0.0, 1e-3, 0.05, 1.0, 1e3, -1.0, f64::NAN, f64::INFINITY][usize::from(regularizer & 7)];
             if regularizer & 64 != 0 {
                 beta *= scale(magnitude);
             }
-            let shrink = [0.5, 0.9, 0.1, 1e-300, 0.0, 1.0, f64::NAN, 2.0][usize::from((regularizer >> 3) & 7)];
+            let shrink =
+                [0.5, 0.9, 0.1, 1e-300, 0.0, 1.0, f64::NAN, 2.0][usize::from((regularizer >> 3) & 7)];
             let valid = beta.is_finite() && beta >= 0.0 && shrink > 0.0 && shrink < 1.0;
             let status = sie_context_set_regularizer(ctx, beta, shrink);
-            assert_eq!(status == sie_status::Ok, valid, "beta {beta}, shrink {shrink}: {status:?}");
+            assert_eq!(
+                status == sie_status::Ok,
+                valid,
+                "beta {beta}, shrink {shrink}: {status:?}"
+            );
             if valid {
                 fixed_beta = beta != 0.0;
             } else {
@@ -136,7 +153,15 @@ fuzz_target!(|data: &[u8]| {
         // normal_neighbours), or the clouds themselves.
         let mut prepared = std::ptr::null_mut();
         if entry == 1 {
-            let status = sie_context_prepare_target_d(ctx, target.as_ptr().cast(), target.len(), 0, null(), 0, &mut prepared);
+            let status = sie_context_prepare_target_d(
+                ctx,
+                target.as_ptr().cast(),
+                target.len(),
+                0,
+                null(),
+                0,
+                &mut prepared,
+            );
             if status != sie_status::Ok {
                 assert!(is_registration_error(status), "prepare: {status:?}");
                 assert!(prepared.is_null());
@@ -182,9 +207,14 @@ fuzz_target!(|data: &[u8]| {
             let (n, read) = match entry {
                 0 => (
                     source.len(),
-                    !source.is_empty() && !target.is_empty() && (skip_non_finite || (finite(&source) && finite(&target))),
+                    !source.is_empty()
+                        && !target.is_empty()
+                        && (skip_non_finite || (finite(&source) && finite(&target))),
                 ),
-                1 => (source.len(), !source.is_empty() && (skip_non_finite || finite(&source))),
+                1 => (
+                    source.len(),
+                    !source.is_empty() && (skip_non_finite || finite(&source)),
+                ),
                 _ => (
                     pairs,
                     pairs > 0 && (skip_non_finite || (finite(&source[..pairs]) && finite(&target[..pairs]))),
@@ -214,11 +244,18 @@ fuzz_target!(|data: &[u8]| {
         if warm & 2 != 0 {
             if let Some(previous) = register(&Guess::None, false) {
                 let status = sie_context_set_warm_start(ctx, &previous);
-                if std::env::var_os("DBG").is_some() { eprintln!("DBG previous {previous:?}"); }
                 // A summary an SIE registration filled is a warm start when its model is in
                 // range (a degenerate fit's sigma of 0 is not); a baseline's never.
                 let valid = sie && warm_start_valid(&previous);
-                assert_eq!(status, if valid { sie_status::Ok } else { sie_status::InvalidArgument }, "{previous:?}");
+                assert_eq!(
+                    status,
+                    if valid {
+                        sie_status::Ok
+                    } else {
+                        sie_status::InvalidArgument
+                    },
+                    "{previous:?}"
+                );
                 warm_set = status == sie_status::Ok;
             }
         }
@@ -226,7 +263,6 @@ fuzz_target!(|data: &[u8]| {
             let fuzzed = summary_from(summary_bytes, warm & 4 != 0);
             let status = sie_context_set_warm_start(ctx, &fuzzed);
             let message = last_error(ctx);
-            if std::env::var_os("STATS").is_some() { eprintln!("STAT fuzzedwarm {status:?} {message}"); }
             if warm_start_valid(&fuzzed) {
                 assert_eq!(status, sie_status::Ok, "{fuzzed:?}: {message}");
                 warm_set = true;
@@ -249,7 +285,6 @@ fuzz_target!(|data: &[u8]| {
             warm_set = false;
         }
         let r = register(&guess, warm_set);
-        if std::env::var_os("STATS").is_some() { eprintln!("STAT entry={entry} ok={} warm={warm_set} start={:?} starts_run={:?} hyp={:?} fixed={fixed_beta} guess={}", r.is_some(), r.map(|s| s.start), r.map(|s| s.starts_run), r.map(|s| s.hypotheses), match guess { Guess::None => "none", Guess::Rigid(_) => "rigid", Guess::NotRigid(_) => "notrigid", Guess::Any(_) => "any" }); }
         sie_context_free(ctx);
         sie_target_free(prepared);
     }

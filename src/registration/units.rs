@@ -125,6 +125,15 @@ impl Units {
     pub(crate) fn transform_in(&self, t: &Matrix4<f64>) -> Matrix4<f64> {
         let r = rotation_part(t);
         let translation = (r * self.centre + translation_part(t) - self.centre) / self.length;
+        // A guess farther than f64's range from clouds this small: a start as hopeless (and as
+        // far, for the search) at ±f64::MAX/8, where its arithmetic stays finite.
+        let translation = translation.map(|v| {
+            if v.is_finite() {
+                v
+            } else {
+                (f64::MAX / 8.0).copysign(v)
+            }
+        });
         from_parts(&r, &translation)
     }
 

@@ -21,7 +21,11 @@ pub fn points(bytes: &[u8], magnitude: u8) -> Vec<[f64; 3]> {
     let scale = scale(magnitude);
     bytes
         .chunks_exact(12)
-        .map(|c| std::array::from_fn(|k| f64::from(f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap())) * scale))
+        .map(|c| {
+            std::array::from_fn(|k| {
+                f64::from(f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap())) * scale
+            })
+        })
         .collect()
 }
 
@@ -43,12 +47,19 @@ pub fn strided<T: Copy>(points: &[[f64; 3]], padding: usize, convert: impl Fn(f6
 
 /// Stride argument for `strided(.., padding, ..)`: 0 (packed) without padding.
 pub fn stride_bytes<T>(padding: usize) -> usize {
-    if padding == 0 { 0 } else { (3 + padding) * size_of::<T>() }
+    if padding == 0 {
+        0
+    } else {
+        (3 + padding) * size_of::<T>()
+    }
 }
 
 /// Whether float arrays hold these points exactly.
 pub fn in_f32(points: &[[f64; 3]]) -> bool {
-    points.iter().flatten().all(|&v| v.is_nan() || f64::from(v as f32) == v)
+    points
+        .iter()
+        .flatten()
+        .all(|&v| v.is_nan() || f64::from(v as f32) == v)
 }
 
 pub fn finite(points: &[[f64; 3]]) -> bool {
@@ -97,7 +108,11 @@ impl Guess {
             }
             4 => {
                 // Scaled by 1.01 to 3.56 or 0.5 to 0.99: far beyond rounding.
-                let s = if knob & 1 == 0 { 1.01 + 0.01 * f64::from(knob) } else { 0.99 - f64::from(knob) / 520.0 };
+                let s = if knob & 1 == 0 {
+                    1.01 + 0.01 * f64::from(knob)
+                } else {
+                    0.99 - f64::from(knob) / 520.0
+                };
                 for entry in [0, 1, 2, 4, 5, 6, 8, 9, 10] {
                     t[entry] *= s;
                 }
@@ -114,12 +129,14 @@ impl Guess {
                 if knob & 1 == 0 {
                     t[12 + usize::from((knob >> 1) % 4)] += 1e-3 * f64::from(1 + (knob >> 3));
                 } else {
-                    t[usize::from((knob >> 1) % 16)] = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][usize::from(knob >> 5) % 3];
+                    t[usize::from((knob >> 1) % 16)] =
+                        [f64::NAN, f64::INFINITY, f64::NEG_INFINITY][usize::from(knob >> 5) % 3];
                 }
                 Guess::NotRigid(t)
             }
             _ => {
-                t[usize::from(knob % 16)] = f64::from_bits(u64::from_le_bytes(bytes[2..10].try_into().unwrap()));
+                t[usize::from(knob % 16)] =
+                    f64::from_bits(u64::from_le_bytes(bytes[2..10].try_into().unwrap()));
                 Guess::Any(t)
             }
         }
@@ -163,7 +180,9 @@ fn rotation(axis: [f64; 3], angle: f64) -> [f64; 16] {
 /// `ctx` is a live context.
 pub unsafe fn last_error(ctx: *const sie_context) -> String {
     // SAFETY: never NULL, NUL-terminated, valid until the next call on this thread.
-    unsafe { CStr::from_ptr(sie_context_last_error(ctx)) }.to_string_lossy().into_owned()
+    unsafe { CStr::from_ptr(sie_context_last_error(ctx)) }
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// The statuses a registration may return here (no callbacks, no cancel, small inputs).
@@ -226,7 +245,10 @@ pub fn check_guess(guess: &Guess, status: sie_status, message: &str, arrays_read
 /// # Safety
 /// `ctx` is a live context whose last registration returned OK with `out`.
 pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) -> sie_summary {
-    if std::env::var_os("KNOWN").is_some() && !out.iter().all(|v| v.is_finite()) { eprintln!("KNOWN inf"); return sie_summary::default(); }
+    if std::env::var_os("KNOWN").is_some() && !out.iter().all(|v| v.is_finite()) {
+        eprintln!("KNOWN inf");
+        return sie_summary::default();
+    }
     assert!(out.iter().all(|v| v.is_finite()), "{out:?}");
     assert_eq!(&out[12..], &[0.0, 0.0, 0.0, 1.0]);
     // A rotation to rounding: the result may be passed back as the next guess.
@@ -234,7 +256,10 @@ pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) 
         for j in 0..3 {
             let dot: f64 = (0..3).map(|k| out[4 * k + i] * out[4 * k + j]).sum();
             let want = if i == j { 1.0 } else { 0.0 };
-            assert!((dot - want).abs() < 1e-6, "rotation block not orthonormal: {out:?}");
+            assert!(
+                (dot - want).abs() < 1e-6,
+                "rotation block not orthonormal: {out:?}"
+            );
         }
     }
     let mut s = sie_summary::default();
@@ -253,7 +278,17 @@ pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) 
         s.margin,
         s.runner_up_significance,
     ];
-    if std::env::var_os("KNOWN").is_some() && !s.sigma.iter().chain(&s.beta).chain(&scalars).all(|v| v.is_finite()) { eprintln!("KNOWN summary"); return s; }
+    if std::env::var_os("KNOWN").is_some()
+        && !s
+            .sigma
+            .iter()
+            .chain(&s.beta)
+            .chain(&scalars)
+            .all(|v| v.is_finite())
+    {
+        eprintln!("KNOWN summary");
+        return s;
+    }
     for v in s.sigma.iter().chain(&s.beta).chain(&scalars) {
         assert!(v.is_finite(), "{s:?}");
     }
@@ -320,12 +355,19 @@ pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) 
         );
         assert_eq!(len, n);
     }
-    assert!(probabilities.iter().all(|p| (0.0..=1.0).contains(p)), "{probabilities:?}");
+    assert!(
+        probabilities.iter().all(|p| (0.0..=1.0).contains(p)),
+        "{probabilities:?}"
+    );
     for (i, &m) in matches.iter().enumerate() {
         if expect.correspondences {
             assert!(m == -1 || m == i as i64, "pair {i} matched to {m}");
         } else {
-            assert!((-1..expect.target_count as i64).contains(&m), "{m} of {}", expect.target_count);
+            assert!(
+                (-1..expect.target_count as i64).contains(&m),
+                "{m} of {}",
+                expect.target_count
+            );
         }
     }
     s
