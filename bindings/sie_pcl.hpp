@@ -132,10 +132,12 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *   back to the full schedule by itself when the guess was bad).
  * - setMaximumIterations(n): caps sie's updates at n. The default is sie's 200, not PCL's 10:
  *   SIE anneals its noise model over typically 30-60 updates.
- * - hasConverged(): PCL's convention. True when sie converged, and also when it stopped at the
- *   iteration cap (PCL's CONVERGENCE_CRITERIA_ITERATIONS; setFailureAfterMaximumIterations(true)
- *   makes that false, as in PCL's criteria); false when the registration could not run or
- *   found no unique solution. summary().stop_reason has sie's own verdict.
+ * - hasConverged(): the C summary's `converged` (sie stopped by its own criteria), or the
+ *   Euclidean fitness criterion below was met. A run that reached the iteration cap has not
+ *   converged (PCL's default criteria call that converged; here it is always the failure
+ *   PCL's setFailureAfterMaximumIterations(true) asks for, and its verdict is never GOOD);
+ *   false also when the registration could not run or found no unique solution.
+ *   summary().stop_reason says why it stopped, summary().verdict how far to trust the pose.
  * - setTransformationEpsilon(e) (> 0): converged when an update translates by at most sqrt(e)
  *   (PCL compares the squared translation) and rotates by at most acos(1 - e), or
  *   acos(setTransformationRotationEpsilon's cosine) when that is set. 0 keeps sie's tolerances.
@@ -195,8 +197,8 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         metric_ = metric;
         metric_fixed_ = true;
     }
-    /** As PCL's DefaultConvergenceCriteria: reaching the iteration cap counts as failure. */
-    void setFailureAfterMaximumIterations(bool failure) noexcept { failure_after_max_iterations_ = failure; }
+    /** Accepted for PCL's interface: reaching the iteration cap is always a failure here. */
+    void setFailureAfterMaximumIterations(bool /*failure*/) noexcept {}
 
     /** As PCL's: a new target. The prepared target (kd-tree, normals) is rebuilt on the next
      * align(); until then it is kept across setInputSource() and align() calls, as
@@ -318,9 +320,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
             transform = run(source, guess_d, metric_used_);
         }
         const StopReason stop = summary_.stop_reason;
-        converged_ = stop == StopReason::Converged ||
-                     (stop == StopReason::IterationLimit && !failure_after_max_iterations_) ||
-                     (stop == StopReason::Cancelled && fitness_converged);
+        converged_ = stop == StopReason::Converged || (stop == StopReason::Cancelled && fitness_converged);
         nr_iterations_ = static_cast<int>(summary_.iterations);
         final_transformation_ = transform.cast<Scalar>();
         previous_transformation_ = previous.cast<Scalar>();
@@ -445,7 +445,6 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     Metric metric_ = Metric::PointToPlane;
     bool metric_fixed_ = false;
     Metric metric_used_ = Metric::PointToPlane;
-    bool failure_after_max_iterations_ = false;
     bool tolerances_set_ = false;
     Summary summary_{};
     std::optional<Error> last_error_;

@@ -330,8 +330,9 @@ enum sie_verdict
     SIE_VERDICT_NONE = 0,
     /**
      * The evidence supports the pose: a significant inlier cluster, a pose the inliers
-     * constrain in every direction, no other start ending elsewhere nearly as significant and
-     * (clouds) inlier residuals no wider than the target points' spacing. Use it.
+     * constrain in every direction, no other start ending elsewhere nearly as significant,
+     * (clouds) inlier residuals no wider than the target points' spacing, and a run that
+     * stopped by itself (never at the iteration cap). Use it.
      */
     SIE_VERDICT_GOOD = 1,
     /**

@@ -639,3 +639,34 @@ fn a_fixed_initial_beta_runs_once_from_the_initial_guess() {
         assert_eq!(result.trace[0].beta, fixed_beta, "{what}: β₀ of the first update");
     }
 }
+
+/// A run stopped by its iteration cap has not shown that it reached the pose the data hold:
+/// never converged, never GOOD, whether one start ran or the search ran several. Before:
+/// GOOD at the cap (a single start from a 10° guess, or a handful of updates).
+#[test]
+fn a_run_stopped_at_the_iteration_cap_is_never_good() {
+    let scene = room_scene(3000, 0.01, 8);
+    for metric in [Metric::PointToPlane, Metric::PointToPoint] {
+        for starts in [Starts::InitialGuess, Starts::Automatic] {
+            let config = RegistrationConfig {
+                metric,
+                starts,
+                max_iterations: 6,
+                ..RegistrationConfig::default()
+            };
+            let result = icp(&scene.source, &scene.target, &config);
+            assert_eq!(
+                result.stop_reason,
+                StopReason::IterationLimit,
+                "{metric:?} {starts:?}"
+            );
+            assert!(!result.converged);
+            assert_ne!(
+                result.quality.verdict,
+                sie::Verdict::Good,
+                "{metric:?} {starts:?}: {:?}",
+                result.quality
+            );
+        }
+    }
+}

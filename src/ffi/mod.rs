@@ -208,8 +208,9 @@ pub enum sie_verdict {
     /// No result (a summary that was never filled).
     None = 0,
     /// The evidence supports the pose: a significant inlier cluster, a pose the inliers
-    /// constrain in every direction, no other start ending elsewhere nearly as significant and
-    /// (clouds) inlier residuals no wider than the target points' spacing. Use it.
+    /// constrain in every direction, no other start ending elsewhere nearly as significant,
+    /// (clouds) inlier residuals no wider than the target points' spacing, and a run that
+    /// stopped by itself (never at the iteration cap). Use it.
     Good = 1,
     /// Registered, but some of that evidence is weak (see significance, conditioning,
     /// sigma_to_spacing, margin): check the pose before use, or retry from another guess.

@@ -136,8 +136,9 @@ pub struct RegistrationResult {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Verdict {
     /// Every test passed: a significant inlier cluster, a pose the inliers constrain in every
-    /// direction, no other start ending elsewhere nearly as significant, and (ICP) inlier
-    /// residuals no wider than the points' spacing.
+    /// direction, no other start ending elsewhere nearly as significant, (ICP) inlier
+    /// residuals no wider than the points' spacing, and a run that stopped by itself (never
+    /// at the iteration cap).
     Good,
     /// The pose is supported but some evidence speaks against it (see `Quality`): check it.
     #[default]

@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::irls::resolution;
 use super::problem::{CloudProblem, Problem, Rows};
-use super::result::{RegistrationResult, Verdict};
+use super::result::{RegistrationResult, StopReason, Verdict};
 use super::significance::{self, Background};
 
 /// What a result is judged by: the background of its significance, and (ICP) the typical
@@ -156,7 +156,10 @@ pub(crate) fn verdict(result: &RegistrationResult) -> Verdict {
         .histograms
         .iter()
         .all(|h| h.peak_found || h.inlier.sigma == 0.0);
+    // A run stopped by its cap has not shown that it reached the pose the data hold.
+    let settled = result.stop_reason != StopReason::IterationLimit;
     let good = peak
+        && settled
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
         && quality.sigma_to_spacing <= 1.0;
