@@ -1,6 +1,7 @@
 //! Faults and load at the C ABI: cancellation, non-finite input, degenerate geometry, SIE edge
 //! cases, concurrent contexts and repeated use (issue "Hardening").
-use std::ffi::CStr;
+mod common;
+use common::c_context::Context;
 use std::ptr::{null, null_mut};
 use std::sync::{Arc, Barrier, mpsc};
 
@@ -8,49 +9,7 @@ use core::ffi::c_void;
 use sie::ffi::*;
 use sie::synthetic::{paper_simulation, room_scene};
 
-/// An owned context freed on drop.
-struct Context(*mut sie_context);
-
 impl Context {
-    fn new() -> Self {
-        let ctx = sie_context_new();
-        assert!(!ctx.is_null());
-        Context(ctx)
-    }
-
-    fn last_error(&self) -> String {
-        // SAFETY: live context; the string is copied before the next call.
-        unsafe { CStr::from_ptr(sie_context_last_error(self.0)) }
-            .to_string_lossy()
-            .into_owned()
-    }
-
-    fn summary(&self) -> sie_summary {
-        let mut summary = sie_summary::default();
-        // SAFETY: live context and a valid out pointer.
-        assert_eq!(
-            unsafe { sie_context_get_summary(self.0, &mut summary) },
-            sie_status::Ok
-        );
-        summary
-    }
-
-    fn probabilities(&self, n: usize) -> Vec<f64> {
-        let mut out = vec![-1.0; n];
-        // SAFETY: `out` holds n doubles.
-        let status = unsafe { sie_context_get_inlier_probabilities(self.0, out.as_mut_ptr(), n, null_mut()) };
-        assert_eq!(status, sie_status::Ok);
-        out
-    }
-
-    fn correspondences(&self, n: usize) -> Vec<i64> {
-        let mut out = vec![-7; n];
-        // SAFETY: `out` holds n entries.
-        let status = unsafe { sie_context_get_correspondences(self.0, out.as_mut_ptr(), n, null_mut()) };
-        assert_eq!(status, sie_status::Ok);
-        out
-    }
-
     /// ICP on double clouds (packed), identity start.
     fn register(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
         // SAFETY: packed arrays of the given counts; `out` holds 16 doubles.
@@ -83,13 +42,6 @@ impl Context {
                 out.as_mut_ptr(),
             )
         }
-    }
-}
-
-impl Drop for Context {
-    fn drop(&mut self) {
-        // SAFETY: allocated by sie_context_new, freed once.
-        unsafe { sie_context_free(self.0) };
     }
 }
 

@@ -1,7 +1,8 @@
 //! The promises of docs/reliability.md on the inputs an adversarial pass found still breaking
 //! them: garbage values at the ends of f64's range among good data, and the per-column
 //! estimator on wide residual matrices. Each through the C ABI, as a host would call it.
-use std::ffi::CStr;
+mod common;
+use common::c_context::Context;
 use std::ptr::{null, null_mut};
 
 use nalgebra::Matrix4;
@@ -9,49 +10,6 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use sie::ffi::*;
 use sie::synthetic::{paper_simulation, room_scene};
-
-/// An owned context freed on drop.
-struct Context(*mut sie_context);
-
-impl Context {
-    fn new() -> Self {
-        let ctx = sie_context_new();
-        assert!(!ctx.is_null());
-        Context(ctx)
-    }
-
-    fn last_error(&self) -> String {
-        // SAFETY: live context; the string is copied before the next call.
-        unsafe { CStr::from_ptr(sie_context_last_error(self.0)) }
-            .to_string_lossy()
-            .into_owned()
-    }
-
-    fn summary(&self) -> sie_summary {
-        let mut summary = sie_summary::default();
-        // SAFETY: live context and a valid out pointer.
-        assert_eq!(
-            unsafe { sie_context_get_summary(self.0, &mut summary) },
-            sie_status::Ok
-        );
-        summary
-    }
-
-    fn probabilities(&self, n: usize) -> Vec<f64> {
-        let mut out = vec![-1.0; n];
-        // SAFETY: `out` holds n doubles.
-        let status = unsafe { sie_context_get_inlier_probabilities(self.0, out.as_mut_ptr(), n, null_mut()) };
-        assert_eq!(status, sie_status::Ok);
-        out
-    }
-}
-
-impl Drop for Context {
-    fn drop(&mut self) {
-        // SAFETY: created by sie_context_new, freed once.
-        unsafe { sie_context_free(self.0) };
-    }
-}
 
 /// 800 good pairs (noise 0.01, the identity) and one pair with a coordinate at ±f64::MAX, on
 /// either side: the 800 decide the pose, the garbage pair is an outlier, every output finite.

@@ -130,10 +130,7 @@ fn child_copy_does_not_fit() {
 #[test]
 fn a_registration_whose_working_set_does_not_fit_is_out_of_memory() {
     let stdout = run_child("child_working_set_does_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "big");
 }
 
 #[test]
@@ -199,10 +196,7 @@ fn child_working_set_does_not_fit() {
 #[test]
 fn a_registration_onto_a_prepared_target_that_does_not_fit_is_out_of_memory() {
     let stdout = run_child("child_registration_onto_a_target_does_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "big");
 }
 
 #[test]
@@ -272,6 +266,14 @@ fn child_registration_onto_a_target_does_not_fit() {
         sie_target_free(target);
         sie_context_free(ctx);
     }
+}
+
+/// The child's report: the big call (`label`) was OUT_OF_MEMORY, the small one after it OK.
+fn assert_refused_then_small_ok(stdout: &str, label: &str) {
+    assert!(
+        stdout.contains(&format!("{label}: OutOfMemory")) && stdout.contains("small: Ok"),
+        "{stdout}"
+    );
 }
 
 /// `count` float points in layers of 2000 × 2000, 3 mm apart, the layers 1 m apart.
@@ -400,10 +402,7 @@ fn child_target_does_not_fit(count: usize) {
 #[test]
 fn a_target_of_20_m_points_that_does_not_fit_is_out_of_memory() {
     let stdout = run_child("child_target_of_20_m_points_does_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "big");
 }
 
 #[test]
@@ -418,10 +417,7 @@ fn child_target_of_20_m_points_does_not_fit() {
 #[test]
 fn a_target_of_15_m_points_that_does_not_fit_is_out_of_memory() {
     let stdout = run_child("child_target_of_15_m_points_does_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "big");
 }
 
 #[test]
@@ -437,10 +433,7 @@ fn child_target_of_15_m_points_does_not_fit() {
 #[test]
 fn normals_that_do_not_fit_are_out_of_memory() {
     let stdout = run_child("child_normals_do_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("normals: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "normals");
 }
 
 #[test]
@@ -488,10 +481,7 @@ fn child_normals_do_not_fit() {
 #[test]
 fn a_20_m_point_source_onto_a_small_target_is_out_of_memory() {
     let stdout = run_child("child_20_m_point_source_does_not_fit", 1024 * MIB);
-    assert!(
-        stdout.contains("big: OutOfMemory") && stdout.contains("small: Ok"),
-        "{stdout}"
-    );
+    assert_refused_then_small_ok(&stdout, "big");
 }
 
 #[test]

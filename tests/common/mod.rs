@@ -6,6 +6,8 @@ use nalgebra::Matrix4;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::{Hooks, Point, RegistrationConfig, RegistrationResult, register_clouds};
 
+pub mod c_context;
+
 // The `sie` binary's helpers: its tests only exist with the CLI.
 #[cfg(feature = "cli")]
 pub mod cli;
