@@ -94,7 +94,7 @@ fn register_pair(
     let index_seconds = prepared.index_seconds();
     let mut result = register_to_prepared(source, &prepared, init, config, hooks, index_seconds)?;
     result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    result.ensure_finite()
 }
 
 /// `register_clouds`' checks of the source and the memory, then the target prepared (and
@@ -166,7 +166,7 @@ fn register_source_to(
     )?;
     let mut result = register_to_prepared(source, target, init, config, hooks, 0.0)?;
     result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    result.ensure_finite()
 }
 
 /// `register_clouds_to` after `config.validate()`; `index_seconds` is what preparing the target

@@ -47,7 +47,7 @@ pub fn register_correspondences(
     )?;
     let mut result = register_kept_pairs(source, target, init, config, hooks)?;
     result.times.total = started.elapsed().as_secs_f64();
-    Ok(result)
+    result.ensure_finite()
 }
 
 /// The pairs the config keeps (`non_finite`, `skip_origin`: a pair is dropped when either

@@ -3,6 +3,8 @@
 
 use nalgebra::Matrix4;
 
+use crate::error::Error;
+
 use crate::sie::HistogramModel;
 
 /// Why the iteration stopped.
@@ -186,6 +188,25 @@ pub struct SearchReport {
 }
 
 impl RegistrationResult {
+    /// The last guard of "no NaN success": a result whose transform or noise model left
+    /// f64's range (coordinates spanning more orders of magnitude than the arithmetic holds)
+    /// is an error, not an OK with NaN.
+    pub(crate) fn ensure_finite(self) -> Result<RegistrationResult, Error> {
+        let finite = self.transform.iter().all(|v| v.is_finite())
+            && self.sigma.iter().chain(&self.beta).all(|v| v.is_finite())
+            && self.rmse.is_finite();
+        if finite {
+            Ok(self)
+        } else {
+            Err(Error::InvalidArgument(
+                "the registration left double precision's range: the coordinates (or the initial \
+                 guess's translation) span more orders of magnitude than its arithmetic holds; \
+                 rescale the clouds or drop the points far from the rest"
+                    .to_string(),
+            ))
+        }
+    }
+
     /// σ of the result: the RMS over its histograms.
     pub(crate) fn sigma_rms(&self) -> f64 {
         (self.sigma.iter().map(|s| s * s).sum::<f64>() / self.sigma.len().max(1) as f64).sqrt()

@@ -17,6 +17,11 @@ use crate::sie::WarmStart;
 /// squares of differences stay far from overflow and underflow.
 const SAFE: f64 = 1e30;
 
+/// Where a start beyond f64's range in these units is held (`transform_in`): far from clouds
+/// of unit size, yet with residuals whose fourth powers (a normal matrix's eigen-solve squares
+/// its entries) stay within f64's range.
+const FAR_START: f64 = 1e50;
+
 /// A change of units: p ↦ (p − centre) / length for coordinates, F ↦ F / noise for per-point
 /// noise scales.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,14 +131,8 @@ impl Units {
         let r = rotation_part(t);
         let translation = (r * self.centre + translation_part(t) - self.centre) / self.length;
         // A guess farther than f64's range from clouds this small: a start as hopeless (and as
-        // far, for the search) at ±f64::MAX/8, where its arithmetic stays finite.
-        let translation = translation.map(|v| {
-            if v.is_finite() {
-                v
-            } else {
-                (f64::MAX / 8.0).copysign(v)
-            }
-        });
+        // far, for the search) at ±FAR_START, where its residuals' squares stay finite.
+        let translation = translation.map(|v| if v.is_finite() { v } else { FAR_START.copysign(v) });
         from_parts(&r, &translation)
     }
 

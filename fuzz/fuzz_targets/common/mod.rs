@@ -245,10 +245,6 @@ pub fn check_guess(guess: &Guess, status: sie_status, message: &str, arrays_read
 /// # Safety
 /// `ctx` is a live context whose last registration returned OK with `out`.
 pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) -> sie_summary {
-    if std::env::var_os("KNOWN").is_some() && !out.iter().all(|v| v.is_finite()) {
-        eprintln!("KNOWN inf");
-        return sie_summary::default();
-    }
     assert!(out.iter().all(|v| v.is_finite()), "{out:?}");
     assert_eq!(&out[12..], &[0.0, 0.0, 0.0, 1.0]);
     // A rotation to rounding: the result may be passed back as the next guess.
