@@ -7,11 +7,11 @@
 //! that large puts an eigenvalue of a few 1e-3 on a direction nothing fixes.
 //!
 //! So both metrics are judged at their result by one measure: J_i = [(p_i − c)×n_i / s, n_i]
-//! per inlier pair (p_i the moved source point, n_i the surface normal at its target, c and s
-//! the weighted centroid and RMS spread of the p_i), conditioning λ_min / λ_max of
+//! per pair, drawn by weight (p_i the moved source point, n_i the surface normal at its
+//! target, c and s the weighted centroid and RMS spread of the p_i), conditioning λ_min / λ_max of
 //! Σ w_i J_iᵀJ_i (`geometry::plane_conditioning_by`, as point-to-plane's solve measures it). A
 //! translation t along the surfaces changes no n_iᵀ(p_i + t − q_i): an eigenvalue near 0. The
-//! normals come from [`SURFACE_NEIGHBOURS`] neighbours, where noise tilts them a fifth as much
+//! normals come from up to [`SURFACE_NEIGHBOURS`] neighbours, where noise tilts them a fifth as much
 //! (a 25th of the false constraint), and are estimated for a few thousand targets only.
 
 use crate::geometry::plane_conditioning_by;
@@ -19,35 +19,57 @@ use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::target::PreparedTarget;
 
-/// Pairs at least this likely inliers take part: the surfaces the result rests on.
-pub(crate) const INLIER_PROBABILITY: f64 = 0.5;
-/// At most this many of them (evenly strided): a 6 × 6 matrix of well-spread rows is as
-/// clear from 2 000 as from every point, and only their normals are estimated.
+/// Pairs whose normals are estimated, at most: a 6 × 6 matrix of well-spread rows is as clear
+/// from 2 000 as from every point.
 pub(crate) const SURFACE_PAIRS: usize = 2_048;
 /// Neighbours of a surface normal. A normal's tilt from noise σ over a neighbourhood of k
 /// points on a surface is about σ / (spacing · k) (radius ∝ √k, averaging over k): 5 times less
 /// than at the 10 neighbours of point-to-plane's normals, and still a neighbourhood, not an
-/// object (its radius about 2.5 times theirs).
+/// object (its radius about 2.5 times theirs) …
 pub(crate) const SURFACE_NEIGHBOURS: usize = 50;
+/// … on a target of at least this many times as many points; a smaller one has fewer, down to
+/// its per-point normals' count (361 points of the PCL test bunny: 50 neighbours are a seventh
+/// of it, curved, and most are no plane).
+const NEIGHBOURHOOD_SHARE: usize = 64;
 
-/// The rows (indices into `probabilities`) whose pairs judge the surfaces: those above
-/// [`INLIER_PROBABILITY`], every ⌈count / SURFACE_PAIRS⌉-th of them, ascending. A NaN
-/// probability is no inlier.
-pub(crate) fn surface_rows(probabilities: &[f64]) -> Vec<usize> {
-    let inlier = |p: f64| p > INLIER_PROBABILITY;
-    let inliers = probabilities.iter().filter(|&&p| inlier(p)).count();
-    let stride = inliers.div_ceil(SURFACE_PAIRS).max(1);
-    probabilities
-        .iter()
-        .enumerate()
-        .filter(|(_, p)| inlier(**p))
-        .map(|(row, _)| row)
-        .step_by(stride)
-        .collect()
+/// Neighbours of a surface normal on a target of `points` points whose per-point normals use
+/// `normal_neighbours`.
+pub(crate) fn surface_neighbours(points: usize, normal_neighbours: usize) -> usize {
+    (points / NEIGHBOURHOOD_SHARE).clamp(normal_neighbours.min(SURFACE_NEIGHBOURS), SURFACE_NEIGHBOURS)
 }
 
-/// One inlier pair: the source point moved by the result, its matched target (curve-order
-/// index into the prepared target) and its inlier probability (the weight).
+/// The rows whose pairs judge the surfaces, with their weights, ascending: every row of
+/// positive probability with it as weight when there are at most [`SURFACE_PAIRS`] of them;
+/// otherwise a systematic sample with probability proportional to it (one draw each
+/// ΣP / SURFACE_PAIRS of the running sum, a row's weight its draws): Σ w·J·Jᵀ keeps its
+/// expectation, and the inliers, not the outliers, take the draws, for SIE's P(inlier) and a
+/// baseline's relative weights alike. A NaN or negative probability counts as 0.
+pub(crate) fn surface_rows(probabilities: &[f64]) -> Vec<(usize, f64)> {
+    let weight = |p: f64| if p > 0.0 && p.is_finite() { p } else { 0.0 };
+    let weighted = || probabilities.iter().enumerate().map(|(row, &p)| (row, weight(p)));
+    if weighted().filter(|(_, w)| *w > 0.0).count() <= SURFACE_PAIRS {
+        return weighted().filter(|(_, w)| *w > 0.0).collect();
+    }
+    let total: f64 = weighted().map(|(_, w)| w).sum();
+    let step = total / SURFACE_PAIRS as f64;
+    let (mut running, mut next_draw) = (0.0, step / 2.0);
+    let mut chosen = Vec::with_capacity(SURFACE_PAIRS);
+    for (row, w) in weighted() {
+        running += w;
+        let mut draws = 0u32;
+        while running > next_draw && draws as usize <= SURFACE_PAIRS {
+            draws += 1;
+            next_draw += step;
+        }
+        if draws > 0 {
+            chosen.push((row, f64::from(draws)));
+        }
+    }
+    chosen
+}
+
+/// One pair: the source point moved by the result, its matched target (curve-order index
+/// into the prepared target) and its weight (`surface_rows`).
 pub(crate) struct SurfacePair {
     pub(crate) moved: Point,
     pub(crate) target: u32,
@@ -60,7 +82,8 @@ pub(crate) struct SurfacePair {
 /// or whose point, normal or weight is not finite, are left out; fewer than 6 left give 0.
 pub(crate) fn surface_conditioning(pairs: &[SurfacePair], target: &PreparedTarget, workers: &Workers) -> f64 {
     let targets: Vec<u32> = pairs.iter().map(|pair| pair.target).collect();
-    let normals = target.surface_normals(&targets, SURFACE_NEIGHBOURS, workers);
+    let neighbours = surface_neighbours(target.indexed_len(), target.normal_neighbours());
+    let normals = target.surface_normals(&targets, neighbours, workers);
     let with_normal: Vec<(Point, Point, f64)> = pairs
         .iter()
         .zip(normals)
@@ -170,12 +193,30 @@ mod tests {
         assert_eq!(surface_conditioning(&on_line, &target, &workers), 0.0);
     }
 
+    /// Few rows: all of positive weight, as they are. Many: about SURFACE_PAIRS draws, in
+    /// proportion to the weights (a row of weight 0.01 among rows of 1 is rarely drawn).
     #[test]
-    fn surface_rows_are_the_inliers_strided_to_the_limit() {
-        assert_eq!(surface_rows(&[0.9, 0.2, f64::NAN, 0.6, 0.5]), vec![0, 3]);
-        let many = vec![1.0; 3 * SURFACE_PAIRS + 5];
+    fn surface_rows_are_drawn_in_proportion_to_their_weight() {
+        let few = [0.9, 0.0, f64::NAN, 0.6, -1.0, 0.01];
+        assert_eq!(surface_rows(&few), vec![(0, 0.9), (3, 0.6), (5, 0.01)]);
+        let many: Vec<f64> = (0..4 * SURFACE_PAIRS)
+            .map(|i| if i % 4 == 0 { 1.0 } else { 0.01 })
+            .collect();
         let rows = surface_rows(&many);
-        assert!(rows.len() <= SURFACE_PAIRS && rows.len() > SURFACE_PAIRS / 2);
-        assert!(rows.windows(2).all(|w| w[1] - w[0] == 4));
+        let draws: f64 = rows.iter().map(|r| r.1).sum();
+        assert!((draws - SURFACE_PAIRS as f64).abs() <= 1.0, "{draws}");
+        let on_inliers: f64 = rows.iter().filter(|r| r.0 % 4 == 0).map(|r| r.1).sum();
+        assert!(on_inliers > 0.95 * draws, "{on_inliers} of {draws}");
+        assert!(rows.windows(2).all(|w| w[0].0 < w[1].0));
+        assert!(surface_rows(&[]).is_empty() && surface_rows(&[0.0; 10]).is_empty());
+    }
+
+    #[test]
+    fn small_targets_get_smaller_neighbourhoods() {
+        assert_eq!(surface_neighbours(361, 10), 10);
+        assert_eq!(surface_neighbours(1_600, 10), 25);
+        assert_eq!(surface_neighbours(20_000, 10), SURFACE_NEIGHBOURS);
+        assert_eq!(surface_neighbours(20_000, 200), SURFACE_NEIGHBOURS);
+        assert_eq!(surface_neighbours(100, 10), 10);
     }
 }

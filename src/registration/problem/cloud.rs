@@ -599,14 +599,14 @@ impl Problem for CloudProblem<'_> {
         let mut pairs = Vec::with_capacity(chosen.len());
         let mut wanted = chosen.iter().copied().peekable();
         for (row, (k, m)) in matched.enumerate() {
-            let Some(&next) = wanted.peek() else {
+            let Some(&(next, weight)) = wanted.peek() else {
                 break;
             };
             if row == next {
                 pairs.push(SurfacePair {
                     moved: transform_point(transform, &pass.points[k]),
                     target: m.nearest,
-                    weight: probabilities[row],
+                    weight,
                 });
                 wanted.next();
             }
