@@ -379,54 +379,8 @@ pub fn point_to_plane_step_by(
         return None;
     }
     let weights = &weights[..count.min(weights.len())];
-    let mut centre = Vector3::zeros();
-    for (i, &w) in weights.iter().enumerate() {
-        centre += w * vector(&moved(i));
-    }
-    centre /= total;
-    let spread = (weights
-        .iter()
-        .enumerate()
-        .map(|(i, &w)| w * (vector(&moved(i)) - centre).norm_squared())
-        .sum::<f64>()
-        / total)
-        .sqrt();
-    // Rotation unknowns are scaled by the spread so all six columns have length units.
-    let length = if spread > 0.0 { spread } else { 1.0 };
-    // Σ w·J·Jᵀ, lower triangle only (all that SymmetricEigen reads): (w·J_r)·J_c for c ≤ r,
-    // the products and sums of the full outer product, 21 of its 36.
-    let mut lower = [0.0; 21];
-    let mut gradient = Vector6::zeros();
-    for (i, &w) in weights.iter().enumerate() {
-        if w == 0.0 {
-            continue;
-        }
-        let (p, (q, n)) = (moved(i), plane(i));
-        let normal = vector(&n);
-        let arm = vector(&p) - centre;
-        let residual = normal.dot(&(vector(&p) - vector(&q)));
-        let rot = arm.cross(&normal) / length;
-        let jac = [rot.x, rot.y, rot.z, normal.x, normal.y, normal.z];
-        let mut k = 0;
-        for r in 0..6 {
-            let weighted = w * jac[r];
-            for &c in &jac[..=r] {
-                lower[k] += weighted * c;
-                k += 1;
-            }
-        }
-        gradient += w * residual * Vector6::from(jac);
-    }
-    let mut hessian = Matrix6::zeros();
-    let mut k = 0;
-    for r in 0..6 {
-        for c in 0..=r {
-            hessian[(r, c)] = lower[k];
-            hessian[(c, r)] = lower[k];
-            k += 1;
-        }
-    }
-    let eigen = SymmetricEigen::new(hessian);
+    let system = PlaneSystem::new(total, moved, plane, weights);
+    let eigen = SymmetricEigen::new(system.hessian);
     let largest = eigen.eigenvalues.max();
     if !(largest.is_finite() && largest > 0.0) {
         return None;
@@ -437,11 +391,12 @@ pub fn point_to_plane_step_by(
         let lambda = eigen.eigenvalues[k];
         let direction = eigen.eigenvectors.column(k);
         if lambda > PLANE_RANK_RATIO * largest {
-            step -= direction * (direction.dot(&gradient) / lambda);
+            step -= direction * (direction.dot(&system.gradient) / lambda);
         } else {
             rank_deficient = true;
         }
     }
+    let (centre, length) = (system.centre, system.length);
     let omega = Vector3::new(step[0], step[1], step[2]) / length;
     let shift = Vector3::new(step[3], step[4], step[5]);
     let rotation = Rotation3::new(omega).into_inner();
@@ -452,6 +407,108 @@ pub fn point_to_plane_step_by(
         rank_deficient,
         conditioning: (eigen.eigenvalues.min() / largest).max(0.0),
     })
+}
+
+/// How well point-to-plane rows fix a pose, as [`point_to_plane_step_by`] measures it (its
+/// `conditioning`): the smallest over the largest eigenvalue of Σ w_i·J_iᵀJ_i, J_i =
+/// [(p_i − c)×n_i / s, n_i], c the weighted centroid and s the weighted RMS distance from it.
+/// Needs no target point (the residuals do not enter). 0 when the weights sum to zero or the
+/// rows leave some direction entirely free; a non-finite point, normal or weight also gives 0.
+pub(crate) fn plane_conditioning_by(
+    count: usize,
+    moved: impl Fn(usize) -> Point,
+    normal: impl Fn(usize) -> Point,
+    weights: &[f64],
+) -> f64 {
+    let weights = &weights[..count.min(weights.len())];
+    let total: f64 = weights.iter().sum();
+    if !(total.is_finite() && total > 0.0) {
+        return 0.0;
+    }
+    let system = PlaneSystem::new(total, &moved, |i| (moved(i), normal(i)), weights);
+    let eigen = SymmetricEigen::new(system.hessian);
+    let (smallest, largest) = (eigen.eigenvalues.min(), eigen.eigenvalues.max());
+    if !(largest.is_finite() && largest > 0.0 && smallest.is_finite()) {
+        return 0.0;
+    }
+    (smallest / largest).clamp(0.0, 1.0)
+}
+
+/// The normal equations of weighted point-to-plane rows Σ w_i (n_iᵀ(p_i − q_i))², linearised
+/// about the rows' weighted centroid with the rotation unknowns scaled by their spread.
+struct PlaneSystem {
+    /// Σ w·J·Jᵀ.
+    hessian: Matrix6<f64>,
+    /// Σ w·r·J.
+    gradient: Vector6<f64>,
+    /// The weighted centroid c of the moved points.
+    centre: Vector3<f64>,
+    /// The scale of the rotation unknowns: the weighted RMS distance from c (1 when 0).
+    length: f64,
+}
+
+impl PlaneSystem {
+    /// Rows i < `weights.len()`: p_i = `moved(i)`, (q_i, n_i) = `plane(i)`; `total` = Σ w.
+    fn new(
+        total: f64,
+        moved: impl Fn(usize) -> Point,
+        plane: impl Fn(usize) -> (Point, Point),
+        weights: &[f64],
+    ) -> Self {
+        let mut centre = Vector3::zeros();
+        for (i, &w) in weights.iter().enumerate() {
+            centre += w * vector(&moved(i));
+        }
+        centre /= total;
+        let spread = (weights
+            .iter()
+            .enumerate()
+            .map(|(i, &w)| w * (vector(&moved(i)) - centre).norm_squared())
+            .sum::<f64>()
+            / total)
+            .sqrt();
+        // Rotation unknowns are scaled by the spread so all six columns have length units.
+        let length = if spread > 0.0 { spread } else { 1.0 };
+        // Σ w·J·Jᵀ, lower triangle only (all that SymmetricEigen reads): (w·J_r)·J_c for c ≤ r,
+        // the products and sums of the full outer product, 21 of its 36.
+        let mut lower = [0.0; 21];
+        let mut gradient = Vector6::zeros();
+        for (i, &w) in weights.iter().enumerate() {
+            if w == 0.0 {
+                continue;
+            }
+            let (p, (q, n)) = (moved(i), plane(i));
+            let normal = vector(&n);
+            let arm = vector(&p) - centre;
+            let residual = normal.dot(&(vector(&p) - vector(&q)));
+            let rot = arm.cross(&normal) / length;
+            let jac = [rot.x, rot.y, rot.z, normal.x, normal.y, normal.z];
+            let mut k = 0;
+            for r in 0..6 {
+                let weighted = w * jac[r];
+                for &c in &jac[..=r] {
+                    lower[k] += weighted * c;
+                    k += 1;
+                }
+            }
+            gradient += w * residual * Vector6::from(jac);
+        }
+        let mut hessian = Matrix6::zeros();
+        let mut k = 0;
+        for r in 0..6 {
+            for c in 0..=r {
+                hessian[(r, c)] = lower[k];
+                hessian[(c, r)] = lower[k];
+                k += 1;
+            }
+        }
+        PlaneSystem {
+            hessian,
+            gradient,
+            centre,
+            length,
+        }
+    }
 }
 
 #[cfg(test)]

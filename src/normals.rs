@@ -34,7 +34,7 @@ pub fn estimate_normals(
         points.len(),
         "estimate_normals: the index must be built from `points`"
     );
-    normals_from(points, points, index, k, workers)
+    normals_from(points, points, index, k, f64::INFINITY, workers)
 }
 
 /// A k-NN neighbourhood whose thickness (smallest covariance eigenvalue) is above this fraction
@@ -143,9 +143,39 @@ impl NormalScale {
         k: usize,
         workers: &Workers,
     ) -> Vec<Point> {
+        self.normals_within(points, index, queries, k, f64::INFINITY, workers)
+    }
+
+    /// [`NormalScale::normals_at`] where the neighbourhood is a plane only: `[0, 0, 0]` where
+    /// its thickness (λ_min / λ_mid) is above [`NOISY_NEIGHBOURHOOD_RATIO`]. An edge or corner
+    /// between surfaces has a "normal" in no surface's direction, and one within the noise
+    /// points anywhere: for judging which directions the surfaces fix, both would read as
+    /// constraint.
+    pub fn planar_normals_at(
+        &self,
+        points: &[Point],
+        index: &NearestNeighbours,
+        queries: &[Point],
+        k: usize,
+        workers: &Workers,
+    ) -> Vec<Point> {
+        self.normals_within(points, index, queries, k, NOISY_NEIGHBOURHOOD_RATIO, workers)
+    }
+
+    fn normals_within(
+        &self,
+        points: &[Point],
+        index: &NearestNeighbours,
+        queries: &[Point],
+        k: usize,
+        max_thickness: f64,
+        workers: &Workers,
+    ) -> Vec<Point> {
         match &self.thinned {
-            None => normals_from(queries, points, index, k, workers),
-            Some((thinned, thin_index)) => normals_from(queries, thinned, thin_index, k, workers),
+            None => normals_from(queries, points, index, k, max_thickness, workers),
+            Some((thinned, thin_index)) => {
+                normals_from(queries, thinned, thin_index, k, max_thickness, workers)
+            }
         }
     }
 }
@@ -214,12 +244,14 @@ fn eigenvalues_ascending(a: &[[f64; 3]; 3]) -> [f64; 3] {
 /// not depend on it.
 const NORMALS_CHUNK: usize = 256;
 
-/// Normal at each of `points` from its k nearest points of `cloud` (`index` is built on `cloud`).
+/// Normal at each of `points` from its k nearest points of `cloud` (`index` is built on `cloud`);
+/// `[0, 0, 0]` where their thickness λ_min / λ_mid is above `max_thickness` (∞: never).
 fn normals_from(
     points: &[Point],
     cloud: &[Point],
     index: &NearestNeighbours,
     k: usize,
+    max_thickness: f64,
     workers: &Workers,
 ) -> Vec<Point> {
     let mut normals = vec![[0.0; 3]; points.len()];
@@ -228,7 +260,16 @@ fn normals_from(
         for (offset, normal) in chunk.iter_mut().enumerate() {
             let p = &points[first + offset];
             index.nearest_k(p, k, &mut neighbours);
-            *normal = match smallest_eigenvector(&covariance(cloud, &neighbours)) {
+            let spread = covariance(cloud, &neighbours);
+            if max_thickness < f64::INFINITY {
+                let [smallest, middle, _] = eigenvalues_ascending(&spread);
+                // Not `<=`: a NaN or a middle of 0 is no plane either.
+                if !(smallest.max(0.0) <= max_thickness * middle && middle > 0.0) {
+                    *normal = [0.0; 3];
+                    continue;
+                }
+            }
+            *normal = match smallest_eigenvector(&spread) {
                 Some(n) if dot(&n, p) > 0.0 => n.map(|c| -c),
                 Some(n) => n,
                 None => [0.0; 3],

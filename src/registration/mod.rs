@@ -12,12 +12,14 @@
 //! * `irls`: one run of the IRLS loop by its own plan (β₀, matched subset, stopping rule).
 //! * `search`: where SIE starts and which start's result is kept.
 //! * `warm`: a sequence's warm start and whether its model held.
-//! * `significance`, `verdict`: how far to trust a result.
+//! * `significance`, `verdict`, `degeneracy`: how far to trust a result (`degeneracy`: how
+//!   well the surfaces under a point-to-point result fix its pose).
 //! * `input`, `units`: the input rules, and computing in safe units.
 
 mod clouds;
 mod config;
 mod correspondences;
+mod degeneracy;
 mod hooks;
 mod input;
 mod irls;

@@ -75,9 +75,10 @@ pub struct StageTimes {
     /// Building the target's kd-tree, including sorting the target along a space-filling
     /// curve (ICP only).
     pub index: f64,
-    /// Estimating target normals (point-to-plane without given normals): choosing the scale up
-    /// front, then each normal when matching first reaches its point (not counted in
-    /// `matching` or `evaluation`).
+    /// Estimating target normals: choosing their scale up front; point-to-plane without given
+    /// normals, each normal when matching first reaches its point (not counted in `matching`
+    /// or `evaluation`); in either metric, the surface normals of a few thousand inliers'
+    /// targets at each run's result, for its conditioning.
     pub normals: f64,
     /// Nearest-neighbour matching and residual rows, every iteration.
     pub matching: f64,
@@ -157,8 +158,10 @@ pub struct Quality {
     pub verdict: Verdict,
     /// Significance of the inlier cluster at the fitted scale (nats; the scale-free score of `registration::significance`).
     pub significance: f64,
-    /// How well the weighted inliers constrain the pose at the last update, 0–1
-    /// (`geometry::Solve::conditioning`).
+    /// How well the weighted inliers constrain the pose, 0–1: at the last update
+    /// (`geometry::Solve::conditioning`); ICP, the smaller of that and point-to-plane's measure
+    /// taken at the result from the inliers' surface normals (wide neighbourhoods, edges left
+    /// out), which sees sliding along a plane or a corridor where the solves do not.
     pub conditioning: f64,
     /// Fitted σ over the typical distance between neighbouring target points (ICP; 0 for
     /// correspondences, which have no spacing).

@@ -76,6 +76,10 @@ pub struct PreparedTarget {
     given_count: usize,
     index: NearestNeighbours,
     normals: TargetNormals,
+    /// Where estimated normals take their neighbours from (`NormalScale::choose`), chosen by
+    /// the first registration that needs normals: point-to-plane's own, or the surface
+    /// conditioning of any ICP result (`registration::degeneracy`).
+    normal_scale: OnceLock<NormalScale>,
     /// The options' count, before capping at the cloud size (what configs are compared with).
     normal_neighbours: usize,
     index_seconds: f64,
@@ -118,7 +122,6 @@ impl Normals<'_> {
 /// 6e-8 rad is far below any scan's noise. The x component is written last (release) and
 /// read first (acquire); [`UNKNOWN`] there marks a normal not estimated yet.
 pub(crate) struct EstimatedNormals {
-    scale: NormalScale,
     values: Vec<[AtomicU32; 3]>,
 }
 
@@ -127,9 +130,8 @@ pub(crate) struct EstimatedNormals {
 const UNKNOWN: u32 = u32::MAX;
 
 impl EstimatedNormals {
-    fn new(scale: NormalScale, count: usize) -> Self {
+    fn new(count: usize) -> Self {
         EstimatedNormals {
-            scale,
             values: (0..count)
                 .map(|_| [AtomicU32::new(UNKNOWN), AtomicU32::new(0), AtomicU32::new(0)])
                 .collect(),
@@ -289,6 +291,7 @@ impl PreparedTarget {
             given_count: target.len(),
             index,
             normals,
+            normal_scale: OnceLock::new(),
             normal_neighbours: options.normal_neighbours,
             index_seconds,
             units,
@@ -428,19 +431,29 @@ impl PreparedTarget {
         matches!(self.normals, TargetNormals::Given { any: false, .. })
     }
 
-    /// Sets up normal estimation (chooses the neighbourhood scale) if no registration has yet;
+    /// The neighbourhood scale of estimated normals, chosen now if no registration has yet.
+    fn normal_scale(&self, workers: &Workers) -> &NormalScale {
+        self.normal_scale.get_or_init(|| {
+            let k = self.normal_neighbours.min(self.points.len());
+            NormalScale::choose(&self.points, Some(&self.order), &self.index, k, workers)
+        })
+    }
+
+    /// Chooses the neighbourhood scale of estimated normals if no registration has yet;
     /// returns the seconds this call spent on it.
+    pub(crate) fn prepare_normal_scale(&self, workers: &Workers) -> f64 {
+        let started = Instant::now();
+        self.normal_scale(workers);
+        started.elapsed().as_secs_f64()
+    }
+
+    /// Sets up normal estimation (chooses the neighbourhood scale, makes room for the normals)
+    /// if no registration has yet; returns the seconds this call spent on it.
     pub(crate) fn prepare_normal_estimation(&self, workers: &Workers) -> f64 {
         let started = Instant::now();
         if let TargetNormals::Estimated(cell) = &self.normals {
-            cell.get_or_init(|| {
-                let n = self.points.len();
-                let k = self.normal_neighbours.min(n);
-                EstimatedNormals::new(
-                    NormalScale::choose(&self.points, Some(&self.order), &self.index, k, workers),
-                    n,
-                )
-            });
+            self.normal_scale(workers);
+            cell.get_or_init(|| EstimatedNormals::new(self.points.len()));
         }
         started.elapsed().as_secs_f64()
     }
@@ -452,7 +465,7 @@ impl PreparedTarget {
         let TargetNormals::Estimated(cell) = &self.normals else {
             return;
         };
-        let Some(estimated) = cell.get() else {
+        let (Some(estimated), Some(scale)) = (cell.get(), self.normal_scale.get()) else {
             return;
         };
         let mut missing: Vec<u32> = targets
@@ -466,12 +479,26 @@ impl PreparedTarget {
         missing.dedup();
         let queries: Vec<Point> = missing.iter().map(|&t| self.points[t as usize]).collect();
         let k = self.normal_neighbours.min(self.points.len());
-        let found = estimated
-            .scale
-            .normals_at(&self.points, &self.index, &queries, k, workers);
+        let found = scale.normals_at(&self.points, &self.index, &queries, k, workers);
         for (&t, n) in missing.iter().zip(found) {
             estimated.set(t as usize, n);
         }
+    }
+
+    /// Normals at the curve-order targets `targets` from their `neighbours` nearest points, at
+    /// the scale estimated normals use (given normals or not), and not kept: with more
+    /// neighbours than `normal_neighbours`, a view of the surfaces in which the points' noise
+    /// hardly tilts a normal. `[0, 0, 0]` where the neighbourhood is no plane (an edge, a
+    /// corner: `NormalScale::planar_normals_at`).
+    pub(crate) fn surface_normals(
+        &self,
+        targets: &[u32],
+        neighbours: usize,
+        workers: &Workers,
+    ) -> Vec<Point> {
+        let scale = self.normal_scale(workers);
+        let queries: Vec<Point> = targets.iter().map(|&t| self.points[t as usize]).collect();
+        scale.planar_normals_at(&self.points, &self.index, &queries, neighbours, workers)
     }
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not

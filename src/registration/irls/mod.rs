@@ -297,6 +297,13 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     let normalised = normalised(rows, cols, &mut work.normalised);
     weighting.final_probabilities(normalised, cols, &mut work.probabilities);
     work.normalised = Vec::new();
+    // ICP's solves miss sliding along surfaces (point-to-point sees the points' spread,
+    // point-to-plane noisy per-point normals): the surfaces' own measure too, the weaker wins.
+    let conditioning = match problem.surface_conditioning(&end.transform, &work.probabilities) {
+        Some(surfaces) => end.conditioning.min(surfaces),
+        None => end.conditioning,
+    };
+    let rows = problem.rows();
     let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
     let model = weighting.summary();
@@ -325,7 +332,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
             runner_up_significance: 0.0,
         },
         quality: Quality {
-            conditioning: end.conditioning,
+            conditioning,
             margin: f64::INFINITY,
             ..Quality::default()
         },

@@ -17,6 +17,7 @@ use crate::median::median;
 use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::config::{Metric, RegistrationConfig};
+use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
 use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 
@@ -158,10 +159,14 @@ impl<'a> CloudProblem<'a> {
                 NO_MATCH - 1
             ));
         }
-        let scale_seconds = match config.metric {
-            Metric::PointToPlane => target.prepare_normal_estimation(&workers),
-            Metric::PointToPoint => 0.0,
-        };
+        // Both metrics estimate the normals of a few thousand targets at each result (the
+        // surfaces' conditioning, `degeneracy`): their scale is chosen now, before the
+        // registration's peak; point-to-plane needs a normal per match besides.
+        let scale_seconds = target.prepare_normal_scale(&workers)
+            + match config.metric {
+                Metric::PointToPlane => target.prepare_normal_estimation(&workers),
+                Metric::PointToPoint => 0.0,
+            };
         let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);
         sort_along_curve(source, &mut sample);
         let coarse = hashed_subset(&sample, COARSE_POINTS, config.seed);
@@ -215,7 +220,7 @@ impl<'a> CloudProblem<'a> {
     /// The pass `purpose` matches: for a step the sample (or its coarse subset while β is
     /// annealed), for the final evaluation every source point, for evidence the evidence subset
     /// (the sample when that is small enough).
-    fn pass_for(&mut self, purpose: Purpose) -> Subset {
+    fn pass_for(&self, purpose: Purpose) -> Subset {
         match purpose {
             Purpose::Evaluate if self.sample.order.len() < self.source_count => Subset::Everything,
             Purpose::Step(StepPoints::Coarse) if !self.coarse.order.is_empty() => Subset::Coarse,
@@ -577,6 +582,38 @@ impl Problem for CloudProblem<'_> {
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.match_and_fill(transform, Purpose::Evaluate);
         &self.rows
+    }
+
+    /// Both metrics: point-to-point's solve does not see the surfaces, point-to-plane's sees
+    /// them through per-point normals whose noise reads as constraint (`degeneracy`).
+    fn surface_conditioning(&mut self, transform: &Matrix4<f64>, probabilities: &[f64]) -> Option<f64> {
+        let started = Instant::now();
+        let pass = self.pass(self.pass_for(Purpose::Evaluate));
+        let chosen = surface_rows(probabilities);
+        // The final evaluation's rows are its pass's matches that gave one, in order (as
+        // `fill_rows` skips them).
+        let (plane, normals) = (self.metric == Metric::PointToPlane, self.target.normals());
+        let matched = pass.matches.iter().enumerate().filter(|(_, m)| {
+            m.nearest != NO_MATCH && !(plane && normals.get(m.nearest as usize) == [0.0; 3])
+        });
+        let mut pairs = Vec::with_capacity(chosen.len());
+        let mut wanted = chosen.iter().copied().peekable();
+        for (row, (k, m)) in matched.enumerate() {
+            let Some(&(next, weight)) = wanted.peek() else {
+                break;
+            };
+            if row == next {
+                pairs.push(SurfacePair {
+                    moved: transform_point(transform, &pass.points[k]),
+                    target: m.nearest,
+                    weight,
+                });
+                wanted.next();
+            }
+        }
+        let conditioning = surface_conditioning(&pairs, self.target, &self.workers);
+        self.setup.normals += started.elapsed().as_secs_f64();
+        Some(conditioning)
     }
 }
 

@@ -160,6 +160,13 @@ pub(crate) trait Problem {
     fn displacement(&self, old: &Matrix4<f64>, new: &Matrix4<f64>) -> f64;
     /// Rows for every source point (no sampling) at `transform`, for the reported results.
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows;
+    /// How well the surfaces under the last `evaluate_all` (at `transform`, with its rows'
+    /// inlier `probabilities`) fix the pose, for a problem whose solve's conditioning misses
+    /// sliding along them (ICP, see `registration::degeneracy`); `None` when the solve's
+    /// conditioning says all there is (fixed correspondences: no surfaces).
+    fn surface_conditioning(&mut self, _transform: &Matrix4<f64>, _probabilities: &[f64]) -> Option<f64> {
+        None
+    }
     /// The last rows' source and target indices, for their last reader. ICP takes them and
     /// frees the rows (empty until the next linearise or evaluation); fixed correspondences,
     /// whose rows are built once and reused, give copies.
