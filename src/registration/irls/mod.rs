@@ -299,6 +299,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     work.normalised = Vec::new();
     let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
+    let uncertainty = problem.pose_uncertainty(&end.transform, &work.probabilities);
     let model = weighting.summary();
     let result = RegistrationResult {
         transform: end.transform,
@@ -329,6 +330,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
             margin: f64::INFINITY,
             ..Quality::default()
         },
+        uncertainty,
     };
     let pending = PendingPerPoint {
         row_probabilities: std::mem::take(&mut work.probabilities),
