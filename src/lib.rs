@@ -71,8 +71,8 @@ pub use error::Error;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use point::{NonFinite, Point};
 pub use registration::{
-    Hooks, Metric, NORMAL_LENGTH_TOLERANCE, Observer, PrepareOptions, PreparedTarget, Quality,
-    RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, Starts, StopReason,
+    Hooks, Metric, NORMAL_LENGTH_TOLERANCE, Observer, PoseUncertainty, PrepareOptions, PreparedTarget,
+    Quality, RegistrationConfig, RegistrationResult, SearchReport, StageTimes, StartKind, Starts, StopReason,
     TraceEntry, Verdict, register_clouds, register_clouds_to, register_correspondences,
 };
 pub use sie::{

@@ -20,6 +20,7 @@ mod clouds;
 mod config;
 mod correspondences;
 mod degeneracy;
+mod covariance;
 mod hooks;
 mod input;
 mod irls;
@@ -36,6 +37,7 @@ pub use clouds::{register_clouds, register_clouds_to};
 pub(crate) use clouds::{register_owned_clouds, register_owned_to};
 pub use config::{Metric, RegistrationConfig, Starts};
 pub use correspondences::register_correspondences;
+pub use covariance::PoseUncertainty;
 pub use hooks::{Hooks, Observer};
 pub use input::NORMAL_LENGTH_TOLERANCE;
 pub use result::{

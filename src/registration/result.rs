@@ -4,6 +4,7 @@
 use nalgebra::Matrix4;
 
 use crate::error::Error;
+use super::covariance::PoseUncertainty;
 
 use crate::sie::HistogramModel;
 
@@ -132,6 +133,9 @@ pub struct RegistrationResult {
     pub search: SearchReport,
     /// How far to trust the result.
     pub quality: Quality,
+    /// The pose's covariance and information from the final inliers (rotation first, the
+    /// target frame; see [`PoseUncertainty`]).
+    pub uncertainty: PoseUncertainty,
 }
 
 /// A verdict on a registration from the evidence SIE has. `converged` only says the iteration

@@ -170,6 +170,7 @@ impl Units {
     pub(crate) fn result_out(&self, result: &mut RegistrationResult) {
         let residual = self.length * self.noise;
         result.transform = self.transform_out(&result.transform);
+        result.uncertainty = result.uncertainty.in_frame(self.length, &self.centre);
         for v in result.sigma.iter_mut().chain(&mut result.beta) {
             *v *= residual;
         }

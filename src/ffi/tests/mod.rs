@@ -114,6 +114,7 @@ fn sample_result() -> RegistrationResult {
             agreeing_starts: 2,
             runner_up_significance: 12.0,
         },
+        uncertainty: crate::PoseUncertainty::UNKNOWN,
         quality: Quality {
             verdict: Verdict::Doubtful,
             significance: 41.5,

@@ -306,6 +306,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     let rows = problem.rows();
     let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
+    let uncertainty = problem.pose_uncertainty(&end.transform, &work.probabilities);
     let model = weighting.summary();
     let result = RegistrationResult {
         transform: end.transform,
@@ -336,6 +337,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
             margin: f64::INFINITY,
             ..Quality::default()
         },
+        uncertainty,
     };
     let pending = PendingPerPoint {
         row_probabilities: std::mem::take(&mut work.probabilities),

@@ -18,6 +18,7 @@ use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::config::{Metric, RegistrationConfig};
 use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
+use crate::registration::covariance::{InformationSum, PoseUncertainty};
 use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 
@@ -447,6 +448,11 @@ impl<'a> CloudProblem<'a> {
     }
 }
 
+/// Residuals of source points within this many target spacings of each other lean on the
+/// same target points and normals (10 neighbours span about two spacings): their errors are
+/// taken as correlated in the pose's covariance.
+const CORRELATED_SPACINGS: f64 = 4.0;
+
 /// Source points per thread's work item when matching: the matches do not depend on it, and
 /// the 5 000-point coarse passes then split evenly over two threads (20 pieces, not 4 of 1 024
 /// and one of 904; docs/performance.md, item 19, has the gain).
@@ -614,6 +620,42 @@ impl Problem for CloudProblem<'_> {
         let conditioning = surface_conditioning(&pairs, self.target, &self.workers);
         self.setup.normals += started.elapsed().as_secs_f64();
         Some(conditioning)
+    }
+
+    /// Visits the evaluation pass's matches in the order and with the filter of `fill_rows`,
+    /// so row i is the i-th match visited.
+    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty {
+        let pass = self.pass(self.pass_for(Purpose::Evaluate));
+        let (target, rows) = (self.target, &self.rows);
+        let normals = target.normals();
+        let plane = self.metric == Metric::PointToPlane;
+        let mut sum = InformationSum::about(
+            transform_point(transform, &self.anchor),
+            CORRELATED_SPACINGS * self.target.spacing(),
+        );
+        let mut row = 0;
+        for (k, m) in pass.matches.iter().enumerate() {
+            if m.nearest == NO_MATCH {
+                continue;
+            }
+            let t = m.nearest as usize;
+            let normal = if plane { normals.get(t) } else { [0.0; 3] };
+            if plane && normal == [0.0; 3] {
+                continue;
+            }
+            if row >= rows.len() {
+                break;
+            }
+            let p = transform_point(transform, &pass.points[k]);
+            let (scale, probability) = (rows.scale.get(row), probabilities[row]);
+            if plane {
+                sum.add_plane(&p, &normal, rows.residual[row], scale, probability);
+            } else {
+                sum.add_point(&p, &rows.residual[3 * row..3 * row + 3], scale, probability);
+            }
+            row += 1;
+        }
+        sum.finish()
     }
 }
 

@@ -13,6 +13,7 @@ use crate::geometry::{Solve, transform_point};
 use crate::median::median;
 use crate::noise::combine;
 use crate::point::Point;
+use crate::registration::covariance::PoseUncertainty;
 pub(crate) use cloud::CloudProblem;
 pub(crate) use pairs::CorrespondenceProblem;
 
@@ -167,6 +168,9 @@ pub(crate) trait Problem {
     fn surface_conditioning(&mut self, _transform: &Matrix4<f64>, _probabilities: &[f64]) -> Option<f64> {
         None
     }
+    /// The pose's uncertainty at `transform` from the rows of the last `evaluate_all` there,
+    /// one inlier probability per row (`covariance`).
+    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty;
     /// The last rows' source and target indices, for their last reader. ICP takes them and
     /// frees the rows (empty until the next linearise or evaluation); fixed correspondences,
     /// whose rows are built once and reused, give copies.

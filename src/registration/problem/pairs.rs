@@ -8,6 +8,7 @@ use super::{
 };
 use crate::geometry::{Solve, transform_point, weighted_rigid_fit};
 use crate::point::Point;
+use crate::registration::covariance::{InformationSum, PoseUncertainty};
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
 pub(crate) struct CorrespondenceProblem<'a> {
@@ -93,5 +94,19 @@ impl Problem for CorrespondenceProblem<'_> {
 
     fn evaluate_all(&mut self, transform: &Matrix4<f64>) -> &Rows {
         self.linearise(transform, StepPoints::Sample)
+    }
+
+    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty {
+        let mut sum = InformationSum::about(transform_point(transform, &self.source_anchor()), 0.0);
+        for (i, ((a, _), residual)) in self
+            .pairs
+            .iter()
+            .zip(self.rows.residual.chunks_exact(3))
+            .enumerate()
+        {
+            let p = transform_point(transform, a);
+            sum.add_point(&p, residual, self.rows.scale.get(i), probabilities[i]);
+        }
+        sum.finish()
     }
 }
