@@ -118,6 +118,7 @@ enum class StartKind : std::uint32_t {
     ScaleFreeLead = SIE_START_KIND_SCALE_FREE_LEAD,
     Hypothesis = SIE_START_KIND_HYPOTHESIS,
     WarmStart = SIE_START_KIND_WARM_START,
+    HalfTurn = SIE_START_KIND_HALF_TURN,
 };
 
 enum class StopReason : std::uint32_t {
@@ -180,6 +181,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "hypothesis";
     case StartKind::WarmStart:
         return "warm start";
+    case StartKind::HalfTurn:
+        return "half turn";
     }
     return "unknown";
 }

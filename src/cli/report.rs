@@ -190,6 +190,7 @@ pub fn search_row(result: &RegistrationResult) -> SearchRow {
             StartKind::ScaleFreeLead => "scale_free_lead",
             StartKind::Hypothesis => "hypothesis",
             StartKind::WarmStart => "warm_start",
+            StartKind::HalfTurn => "half_turn",
         },
         starts_run: search.starts_run,
         hypotheses: search.hypotheses,

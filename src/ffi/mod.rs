@@ -235,6 +235,9 @@ pub enum sie_start_kind {
     Hypothesis = 3,
     /// The initial guess with the warm start's noise model (`sie_context_set_warm_start`).
     WarmStart = 4,
+    /// Another start's result turned half a turn about one of its inliers' principal axes (a
+    /// near-symmetric scene's rival pose), then SIE (clouds).
+    HalfTurn = 5,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).

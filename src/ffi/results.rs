@@ -47,6 +47,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StartKind::ScaleFreeLead => sie_start_kind::ScaleFreeLead,
         StartKind::Hypothesis => sie_start_kind::Hypothesis,
         StartKind::WarmStart => sie_start_kind::WarmStart,
+        StartKind::HalfTurn => sie_start_kind::HalfTurn,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

@@ -13,8 +13,8 @@ use super::input::{
 };
 use super::irls::{RunPlan, searches_starts};
 use super::problem::CloudProblem;
-use super::result::RegistrationResult;
-use super::search::{register_from_starts, run_on_clouds};
+use super::result::{RegistrationResult, StartKind};
+use super::search::{BestOfStarts, challenge_with_half_turns, register_from_starts, run_on_clouds};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::verdict::{Evidence, judged_alone};
 use super::warm::{WarmRun, run_warm};
@@ -285,14 +285,20 @@ fn register_cloud_problem(
     let first_iteration = warm_run.as_ref().map_or(1, |r| r.iterations + 1);
     let mut result = if searches_starts(config) {
         register_from_starts(problem, init, first_iteration, &cold, observer)
-    } else {
+    } else if cold.is_sie() {
         let mut evidence = Evidence::of_clouds(problem, &init);
-        let (mut result, pending) = run_on_clouds(problem, init, first_iteration, &cold, observer);
-        // As for the first of several starts (`register_from_starts`); a baseline has no σ.
-        // Either way the rows are the final evaluation's (again) after this.
-        if cold.is_sie() {
-            evidence.widen_around(problem, &result);
+        let (result, pending) = run_on_clouds(problem, init, first_iteration, &cold, observer.as_deref_mut());
+        // As for the first of several starts (`register_from_starts`), rows left at the result.
+        evidence.widen_around(problem, &result);
+        let mut best = BestOfStarts::new(evidence);
+        if best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
+            challenge_with_half_turns(problem, &mut best, &cold, observer);
         }
+        best.finish(problem)
+    } else {
+        // A baseline: no σ to widen the background by, nor to screen rivals at.
+        let evidence = Evidence::of_clouds(problem, &init);
+        let (mut result, pending) = run_on_clouds(problem, init, first_iteration, &cold, observer);
         judged_alone(&evidence, problem, &mut result);
         pending.spread_last(problem, &mut result);
         result

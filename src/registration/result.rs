@@ -3,8 +3,8 @@
 
 use nalgebra::Matrix4;
 
-use crate::error::Error;
 use super::covariance::PoseUncertainty;
+use crate::error::Error;
 
 use crate::sie::HistogramModel;
 
@@ -38,6 +38,9 @@ pub enum StartKind {
     /// The initial guess with the caller's warm start (`RegistrationConfig::warm_start`): the
     /// previous fit's noise model, β₀ = 2σ.
     WarmStart,
+    /// The result of another start turned half a turn about one of its inliers' principal axes
+    /// (a near-symmetric scene's rival pose, `search::half_turns`), then SIE (ICP).
+    HalfTurn,
 }
 
 /// One IRLS iteration, for plotting convergence.

@@ -110,6 +110,14 @@ fn most_significant(squared_norms: &mut [f64], background: &Background) -> Clust
     best
 }
 
+/// ρ² holding 99 % of Gaussian inliers of per-component scale σ in `dims` dimensions:
+/// σ²·χ²_m(0.99), by Wilson–Hilferty (z = 2.326): 6.6·σ² for m = 1, 11.3·σ² for m = 3.
+pub(crate) fn inlier_radius_squared(sigma: f64, dims: usize) -> f64 {
+    let m = dims.max(1) as f64;
+    let quantile = m * (1.0 - 2.0 / (9.0 * m) + 2.326 * (2.0 / (9.0 * m)).sqrt()).powi(3);
+    sigma * sigma * quantile
+}
+
 /// The cluster a fitted noise model describes: the residuals within the radius that holds
 /// 99 % of Gaussian inliers of per-component scale σ (ρ² = σ²·χ²_m(0.99), Wilson–Hilferty),
 /// and its significance against the background. Used to choose between SIE's results from
@@ -123,10 +131,7 @@ pub fn at_scale(
     background: &Background,
     sigma: f64,
 ) -> Cluster {
-    let m = background.dims.max(1) as f64;
-    // χ²_m at 99 % (z = 2.326) by Wilson–Hilferty: 6.6 for m = 1, 11.3 for m = 3.
-    let quantile = m * (1.0 - 2.0 / (9.0 * m) + 2.326 * (2.0 / (9.0 * m)).sqrt()).powi(3);
-    let radius_squared = sigma * sigma * quantile;
+    let radius_squared = inlier_radius_squared(sigma, background.dims);
     // Streamed: at 10 M rows a copy of the norms would be 76 MiB at the registration's peak.
     let (count, total) = squared_norms
         .into_iter()

@@ -7,7 +7,7 @@ use nalgebra::Matrix4;
 use super::irls::resolution;
 use super::problem::{CloudProblem, Problem, Rows};
 use super::result::{RegistrationResult, StopReason, Verdict};
-use super::significance::{self, Background};
+use super::significance::{self, Background, BinnedSignificance};
 
 /// What a result is judged by: the background of its significance, and (ICP) the typical
 /// spacing of the target points as a normalised residual.
@@ -94,6 +94,15 @@ impl Evidence {
         self.background.spread_squared = self.background.spread_squared.max(around);
     }
 
+    /// The scale-free significance of these rows (`BinnedSignificance`) against this
+    /// background: how much a pose's residuals stand out, with no fitted scale to judge at
+    /// (a pose no run has refined yet).
+    pub(crate) fn screen(&self, rows: &Rows, cols: usize) -> f64 {
+        BinnedSignificance::new(self.background)
+            .evaluate(squared_norms(rows, cols))
+            .significance
+    }
+
     /// Fills `result.quality` but for the verdict and the margin (which need every start) and
     /// returns the cluster at the result's fitted scale. The problem's rows must be the result's.
     pub(crate) fn assess(
@@ -142,7 +151,7 @@ fn squared_norms(rows: &Rows, cols: usize) -> impl Iterator<Item = f64> + '_ {
 const MIN_CONDITIONING: f64 = 1e-3;
 /// A start that ended elsewhere with more than half the significance makes the result a
 /// close call.
-const MIN_MARGIN: f64 = 2.0;
+pub(crate) const MIN_MARGIN: f64 = 2.0;
 
 /// The verdict from the evidence in `result.quality` and the fitted histograms.
 pub(crate) fn verdict(result: &RegistrationResult) -> Verdict {

@@ -7,7 +7,7 @@ use super::hooks::Observer;
 use super::irls::RunPlan;
 use super::problem::{CloudProblem, Problem, moved_apart};
 use super::result::{RegistrationResult, StartKind, StopReason};
-use super::search::run_on_clouds;
+use super::search::{BestOfStarts, challenge_with_half_turns, run_on_clouds};
 use super::verdict::{Evidence, judged_alone};
 use crate::sie::WarmStart;
 use crate::sie::schedule::WARM_BETA_WIDTHS;
@@ -44,18 +44,26 @@ pub(crate) fn run_warm(
     init: Matrix4<f64>,
     plan: &RunPlan,
     warm: &WarmStart,
-    observer: Option<&mut Observer<'_>>,
+    mut observer: Option<&mut Observer<'_>>,
 ) -> WarmRun {
-    let (mut result, pending) = run_on_clouds(problem, init, 1, plan, observer);
+    let (mut result, pending) = run_on_clouds(problem, init, 1, plan, observer.as_deref_mut());
     result.search.start = StartKind::WarmStart;
     let typical_scale = problem.rows().scale.median();
     let moved = moved_apart(problem.probe_points(), &init, &result.transform) / typical_scale;
-    if result.stop_reason == StopReason::Cancelled || warm_model_held(warm, &result, moved) {
+    if result.stop_reason == StopReason::Cancelled {
         let evidence = Evidence::around(problem, &result);
         judged_alone(&evidence, problem, &mut result);
         // `around` left the rows at the result: the final evaluation's, bit for bit.
         pending.spread_last(problem, &mut result);
         return WarmRun::Kept(result);
+    }
+    if warm_model_held(warm, &result, moved) {
+        // As a cold single start: judged against its near misses, challenged by its half turns.
+        let mut best = BestOfStarts::new(Evidence::around(problem, &result));
+        if best.offer(problem, result, Some(pending), StartKind::WarmStart) {
+            challenge_with_half_turns(problem, &mut best, &plan.cold(), observer);
+        }
+        return WarmRun::Kept(best.finish(problem));
     }
     WarmRun::Dropped(result)
 }

@@ -91,6 +91,7 @@ class StartKind(_NamedEnum):
     SCALE_FREE_LEAD = 2
     HYPOTHESIS = 3
     WARM_START = 4
+    HALF_TURN = 5  # a near-symmetric scene's rival pose (another start turned half a turn)
 
 
 class Cloud(_NamedEnum):

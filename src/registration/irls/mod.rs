@@ -135,6 +135,22 @@ pub(crate) fn run_pending(
     report(problem, end, state)
 }
 
+/// The updates of `plan` from `init` without the report (no final evaluation, no per-point
+/// results): where a run leads, for screening a start before paying for a full run.
+pub(crate) fn settle(problem: &mut dyn Problem, init: Matrix4<f64>, plan: &RunPlan) -> Matrix4<f64> {
+    let precision_stop = if problem.rematches() {
+        PrecisionStop::Allowed
+    } else {
+        PrecisionStop::Never
+    };
+    let mut state = RunState {
+        weighting: Weighting::new(plan, precision_stop),
+        work: Workspace::default(),
+        times: StageTimes::default(),
+    };
+    iterate(problem, init, 1, plan, &mut state, None).transform
+}
+
 /// Where the loop ended.
 struct LoopEnd {
     transform: Matrix4<f64>,

@@ -121,6 +121,20 @@ impl RunPlan {
         }
     }
 
+    /// The caller's cold run on the coarse subset, at most `max_updates` updates, no trace:
+    /// where a start leads, for screening it before a full run.
+    pub(crate) fn settling(&self, max_updates: u32) -> Self {
+        RunPlan {
+            matching: Matching::CoarseThroughout,
+            stop: StopRule {
+                max_updates,
+                ..self.stop
+            },
+            record_trace: false,
+            ..self.cold()
+        }
+    }
+
     /// Whether the run weighs with SIE.
     pub(crate) fn is_sie(&self) -> bool {
         matches!(self.cost, RunCost::Sie { .. })

@@ -17,8 +17,8 @@ use crate::median::median;
 use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::config::{Metric, RegistrationConfig};
-use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
 use crate::registration::covariance::{InformationSum, PoseUncertainty};
+use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
 use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 
@@ -489,6 +489,37 @@ impl CloudProblem<'_> {
         &self.rows
     }
 
+    /// The evidence subset's source points moved by `transform` whose residual there lies
+    /// within `radius_squared` (normalised, as `at_scale` counts): where a pose's inliers are,
+    /// in the target frame. Leaves the problem's rows at the evidence subset's.
+    pub(crate) fn evidence_points_within(
+        &mut self,
+        transform: &Matrix4<f64>,
+        radius_squared: f64,
+    ) -> Vec<Point> {
+        self.match_and_fill(transform, Purpose::Evidence);
+        let cols = self.cols();
+        let pass = self.pass(self.pass_for(Purpose::Evidence));
+        let rows = &self.rows;
+        self.rows_of(pass)
+            .zip(rows.residual.chunks_exact(cols).enumerate())
+            .filter(|(_, (i, r))| {
+                let f = rows.scale.get(*i);
+                r.iter().map(|v| v * v).sum::<f64>() <= radius_squared * f * f
+            })
+            .map(|((k, _), _)| transform_point(transform, &pass.points[k]))
+            .collect()
+    }
+
+    /// The pass's matches that gave a row, in row order (`fill_rows` skips the others), with
+    /// their index in the pass.
+    fn rows_of<'p>(&'p self, pass: &'p Pass) -> impl Iterator<Item = (usize, &'p Match)> {
+        let (plane, normals) = (self.metric == Metric::PointToPlane, self.target.normals());
+        pass.matches.iter().enumerate().filter(move |(_, m)| {
+            m.nearest != NO_MATCH && !(plane && normals.get(m.nearest as usize) == [0.0; 3])
+        })
+    }
+
     /// See [`PreparedTarget::spread`].
     pub(crate) fn target_spread(&self) -> f64 {
         self.target.spread()
@@ -598,10 +629,7 @@ impl Problem for CloudProblem<'_> {
         let chosen = surface_rows(probabilities);
         // The final evaluation's rows are its pass's matches that gave one, in order (as
         // `fill_rows` skips them).
-        let (plane, normals) = (self.metric == Metric::PointToPlane, self.target.normals());
-        let matched = pass.matches.iter().enumerate().filter(|(_, m)| {
-            m.nearest != NO_MATCH && !(plane && normals.get(m.nearest as usize) == [0.0; 3])
-        });
+        let matched = self.rows_of(pass);
         let mut pairs = Vec::with_capacity(chosen.len());
         let mut wanted = chosen.iter().copied().peekable();
         for (row, (k, m)) in matched.enumerate() {

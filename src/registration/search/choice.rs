@@ -135,6 +135,21 @@ impl BestOfStarts {
         !cancelled
     }
 
+    /// The best result's transform and fitted σ (RMS over the histograms), if a start ran.
+    pub(crate) fn best_pose(&self) -> Option<(Matrix4<f64>, f64)> {
+        self.best
+            .as_ref()
+            .map(|best| (best.result.transform, best.result.sigma_rms()))
+    }
+
+    /// Counts a start that is no rival to the best (`half_turns`): its updates are numbered
+    /// and traced, its pose is not compared.
+    pub(crate) fn pass_over(&mut self, mut result: RegistrationResult) {
+        self.starts_run += 1;
+        self.next_iteration = result.iterations + 1;
+        self.trace.append(&mut result.trace);
+    }
+
     /// Drops the best result's per-point results before another start runs (`finish`
     /// rebuilds them): at 10 M points they are 153 MiB of the registration's peak, and
     /// rebuilding costs one pass over the source points.

@@ -15,8 +15,9 @@
 use nalgebra::Matrix4;
 
 use super::choice::BestOfStarts;
+use super::half_turns::{HalfTurns, SETTLE_UPDATES};
 use crate::registration::hooks::Observer;
-use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending};
+use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending, settle};
 use crate::registration::problem::{CloudProblem, Problem, moved_apart};
 use crate::registration::result::{RegistrationResult, StartKind, StopReason};
 use crate::registration::verdict::{Evidence, mean_squared_norm};
@@ -152,11 +153,56 @@ pub(crate) fn register_from_starts(
             // Leaves the rows at the result: the final evaluation's again, bit for bit.
             best.evidence.widen_around(problem, &result);
         }
-        if !best.offer(problem, result, Some(pending), kind) || stayed {
+        if !best.offer(problem, result, Some(pending), kind) {
+            return best.finish(problem);
+        }
+        if stayed {
             break;
         }
     }
+    challenge_with_half_turns(problem, &mut best, plan, observer);
     best.finish(problem)
+}
+
+/// Runs SIE by `plan` from each half turn of the best result so far that stays a rival once
+/// settled (`half_turns`), offered as another start: a better rival wins, one nearly as good
+/// lowers the margin.
+pub(crate) fn challenge_with_half_turns(
+    problem: &mut CloudProblem<'_>,
+    best: &mut BestOfStarts,
+    plan: &RunPlan,
+    mut observer: Option<&mut Observer<'_>>,
+) {
+    let Some((transform, sigma)) = best.best_pose() else {
+        return;
+    };
+    let turns = HalfTurns::of(problem, &best.evidence, &transform, sigma);
+    let settling = plan.settling(SETTLE_UPDATES);
+    // What the rivals are counted against, once one is run: the best's inliers among every row.
+    let mut best_inliers = None;
+    for turned in &turns.poses {
+        let settled = settle(problem, *turned, &settling);
+        if !turns.rivals(problem, &best.evidence, &settled) {
+            continue;
+        }
+        let own = *best_inliers.get_or_insert_with(|| turns.inliers_at(problem, &transform, sigma));
+        best.park();
+        let (result, pending) = run_on_clouds(
+            problem,
+            *turned,
+            best.next_iteration,
+            plan,
+            observer.as_deref_mut(),
+        );
+        // The rows are the rival's final evaluation: every row, as `own` counted.
+        if result.stop_reason != StopReason::Cancelled && !turns.nearly_as_good(problem, sigma, own) {
+            best.pass_over(result);
+            continue;
+        }
+        if !best.offer(problem, result, Some(pending), StartKind::HalfTurn) {
+            return;
+        }
+    }
 }
 
 /// The initial guess was already right to within the noise: the paper's start (the widest β)

@@ -6,12 +6,15 @@
 //! * `hypotheses`: a threshold-free hypothesis search over minimal samples of given pairs.
 //! * `pair_starts`: correspondence registration from the guess, or from that search's best
 //!   poses.
+//! * `half_turns`: the rivals a near-symmetric scene allows a result, run as further starts.
 //! * `choice`: the choice between the starts' results, and how the others relate to it.
 
 mod choice;
 mod cloud_starts;
+mod half_turns;
 mod hypotheses;
 mod pair_starts;
 
-pub(crate) use cloud_starts::{register_from_starts, run_on_clouds};
+pub(crate) use choice::BestOfStarts;
+pub(crate) use cloud_starts::{challenge_with_half_turns, register_from_starts, run_on_clouds};
 pub(crate) use pair_starts::{register_from_guess, register_from_hypotheses};

@@ -1,0 +1,185 @@
+//! Poses a near-symmetric scene explains nearly as well as the result (project issue 29). An
+//! object turned half a turn about one of its principal axes lies on itself but for its few
+//! asymmetric details (a box with a bump at one end): ICP from a guess near the flip stays there
+//! with most points inliers, and a single start has nothing to compare that with. The rivals are
+//! the result's inliers turned half a turn about each of their principal axes through their
+//! centroid. Each is screened on the evidence subset by its scale-free significance; one that
+//! comes near the result's is refined by SIE and offered as another start, so that a better
+//! rival wins and one nearly as good makes the result a close call (its margin).
+
+use nalgebra::{Matrix3, Matrix4, SymmetricEigen, Vector3};
+
+use crate::registration::problem::{CloudProblem, Problem, Rows};
+use crate::registration::significance::inlier_radius_squared;
+use crate::registration::verdict::{Evidence, MIN_MARGIN};
+
+/// A half turn is settled (a short SIE run on the coarse subset) when its scale-free
+/// significance on the evidence subset, as turned, reaches this fraction of the result's. As
+/// turned it is off by the asymmetric details' pull on the centroid and the axes (a box with a
+/// bump: centimetres, several σ), so it scores far below what it settles to: a twentieth.
+const TURNED_SHARE: f64 = 0.05;
+
+/// Updates a half turn settles for: enough to close the few σ its turn is off by.
+pub(crate) const SETTLE_UPDATES: u32 = 15;
+
+/// A refined half turn is no rival when, at the result's inlier radius, it holds fewer of the
+/// residuals than the result by more than this many standard deviations of that count
+/// (√count): it explains clearly less of the data at the same precision (a room's
+/// walls turned onto themselves, without its furniture).
+const FEWER_INLIERS_DEVIATIONS: f64 = 3.0;
+
+/// Fewer inliers than this on the evidence subset do not give principal axes worth turning
+/// about.
+const MIN_INLIERS: usize = 12;
+
+/// The half turns of a result worth settling, and the result's own scale-free significance on
+/// the evidence subset that they are judged against.
+pub(crate) struct HalfTurns {
+    pub(crate) poses: Vec<Matrix4<f64>>,
+    own: f64,
+}
+
+impl HalfTurns {
+    /// Those half turns of the pose `transform` (fitted σ `sigma`) that score at least
+    /// [`TURNED_SHARE`] of the pose's own significance on the evidence subset. Leaves the
+    /// problem's rows at the evidence subset's.
+    pub(crate) fn of(
+        problem: &mut CloudProblem<'_>,
+        evidence: &Evidence,
+        transform: &Matrix4<f64>,
+        sigma: f64,
+    ) -> Self {
+        let cols = problem.cols();
+        let inliers = problem.evidence_points_within(transform, inlier_radius_squared(sigma, cols));
+        // The rows are the evidence subset's at `transform` still.
+        let own = evidence.screen(problem.rows(), cols);
+        if inliers.len() < MIN_INLIERS {
+            return HalfTurns {
+                poses: Vec::new(),
+                own,
+            };
+        }
+        let poses = half_turns_about_axes(&inliers)
+            .into_iter()
+            .map(|turn| turn * transform)
+            .filter(|rival| evidence.screen(problem.evaluate_evidence(rival), cols) >= TURNED_SHARE * own)
+            .collect();
+        HalfTurns { poses, own }
+    }
+
+    /// The rows within the inlier radius of σ = `sigma` among every row of the final
+    /// evaluation at `transform` (what [`HalfTurns::nearly_as_good`] compares with). Leaves
+    /// the problem's rows there.
+    pub(crate) fn inliers_at(
+        &self,
+        problem: &mut CloudProblem<'_>,
+        transform: &Matrix4<f64>,
+        sigma: f64,
+    ) -> usize {
+        let cols = problem.cols();
+        inliers_within(
+            problem.evaluate_all(transform),
+            cols,
+            inlier_radius_squared(sigma, cols),
+        )
+    }
+
+    /// Whether the problem's rows (a refined half turn's final evaluation) explain the data
+    /// nearly as well as the best result or better: as many rows within the best's inlier
+    /// radius (its σ, `sigma`) as its `own` count, less at most [`FEWER_INLIERS_DEVIATIONS`]
+    /// standard deviations (√own).
+    pub(crate) fn nearly_as_good(&self, problem: &CloudProblem<'_>, sigma: f64, own: usize) -> bool {
+        let cols = problem.cols();
+        let rivals = inliers_within(problem.rows(), cols, inlier_radius_squared(sigma, cols)) as f64;
+        let own = own as f64;
+        rivals >= own - FEWER_INLIERS_DEVIATIONS * own.sqrt()
+    }
+
+    /// Whether a settled half turn scores at least half the result's significance on the
+    /// evidence subset: a rival that could lower the result's margin below `MIN_MARGIN`, worth
+    /// a full run. Leaves the problem's rows at the evidence subset's.
+    pub(crate) fn rivals(
+        &self,
+        problem: &mut CloudProblem<'_>,
+        evidence: &Evidence,
+        settled: &Matrix4<f64>,
+    ) -> bool {
+        let cols = problem.cols();
+        evidence.screen(problem.evaluate_evidence(settled), cols) * MIN_MARGIN >= self.own
+    }
+}
+
+/// Rows whose normalised squared residual is at most `radius_squared`.
+fn inliers_within(rows: &Rows, cols: usize, radius_squared: f64) -> usize {
+    rows.residual
+        .chunks_exact(cols)
+        .enumerate()
+        .filter(|(i, r)| {
+            let f = rows.scale.get(*i);
+            r.iter().map(|v| v * v).sum::<f64>() <= radius_squared * f * f
+        })
+        .count()
+}
+
+/// The rigid motions turning `points` half a turn about each of their principal axes through
+/// their centroid: x ↦ R·(x − c) + c with R = 2·e·eᵀ − I.
+fn half_turns_about_axes(points: &[[f64; 3]]) -> Vec<Matrix4<f64>> {
+    let count = points.len() as f64;
+    let centroid = points
+        .iter()
+        .fold(Vector3::zeros(), |sum, p| sum + Vector3::from(*p))
+        / count;
+    let scatter = points.iter().fold(Matrix3::zeros(), |sum, p| {
+        let d = Vector3::from(*p) - centroid;
+        sum + d * d.transpose()
+    });
+    let axes = SymmetricEigen::new(scatter).eigenvectors;
+    axes.column_iter()
+        .map(|axis| {
+            let rotation = 2.0 * axis * axis.transpose() - Matrix3::identity();
+            let mut turn = Matrix4::identity();
+            turn.fixed_view_mut::<3, 3>(0, 0).copy_from(&rotation);
+            turn.fixed_view_mut::<3, 1>(0, 3)
+                .copy_from(&(centroid - rotation * centroid));
+            turn
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::transform_point;
+
+    /// Points of a 4 × 2 × 1 box's corners off the origin: the half turns are about x, y and z
+    /// through the centre, each maps the corners onto themselves, and each is a rotation.
+    #[test]
+    fn half_turns_of_a_box_map_its_corners_onto_themselves() {
+        let centre = [1.0, -2.0, 0.5];
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|i| {
+                let s = |bit: usize, half: f64| if i >> bit & 1 == 1 { half } else { -half };
+                [
+                    centre[0] + s(0, 2.0),
+                    centre[1] + s(1, 1.0),
+                    centre[2] + s(2, 0.5),
+                ]
+            })
+            .collect();
+        let turns = half_turns_about_axes(&corners);
+        assert_eq!(turns.len(), 3);
+        for turn in &turns {
+            let rotation = turn.fixed_view::<3, 3>(0, 0).into_owned();
+            assert!((rotation.determinant() - 1.0).abs() < 1e-12);
+            assert!((rotation.trace() + 1.0).abs() < 1e-12, "a half turn has trace −1");
+            for corner in &corners {
+                let moved = transform_point(turn, corner);
+                let nearest = corners
+                    .iter()
+                    .map(|c| (0..3).map(|k| (c[k] - moved[k]).powi(2)).sum::<f64>())
+                    .fold(f64::INFINITY, f64::min);
+                assert!(nearest < 1e-20, "{corner:?} turned to {moved:?}");
+            }
+        }
+    }
+}
