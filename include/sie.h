@@ -1279,6 +1279,35 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
                                  size_t *out_len);
 
 /**
+ * Copies the uncertainty of the last successful registration's pose: its 6x6 covariance to
+ * `out_covariance` and its inverse, the information matrix, to `out_information`, each as 36
+ * doubles in ROW-major order (M[6*row + col]). Either pointer may be NULL to skip that
+ * matrix, not both (NULL_ARGUMENT); two buffers that overlap are INVALID_ARGUMENT. Nothing is
+ * written unless the call succeeds.
+ *
+ * Convention: the returned T_target_source is perturbed on the LEFT, T = Exp(d) * T_hat, with
+ * d = (w, v): w the rotation vector (radians, rows/columns 0..2) FIRST, then v the
+ * translation (rows/columns 3..5), both in the TARGET frame and in the caller's units (the
+ * covariance in rad^2, rad*length and length^2; the information in their inverses). To first
+ * order, p_target moves by w x p_target + v.
+ *
+ * It is the weighted least-squares covariance of the final inliers: their residuals weighted
+ * by P(inlier) and the noise scales, with the variance measured from those residuals (so it
+ * holds whatever noise shape was fitted). Directions the inliers leave free (sliding along a
+ * plane, turning about a symmetry axis) get a variance far above every constrained one and an
+ * information near 0; check `sie_summary.conditioning` and `verdict` as well. Both matrices
+ * are all zeros when the result has too few weighted residuals to measure a variance (e.g. a
+ * baseline cost that weighted none).
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `out_covariance` and `out_information` are each NULL or
+ * writable for 36 doubles.
+ */
+sie_status sie_context_get_pose_uncertainty(const struct sie_context *ctx,
+                                            double *out_covariance,
+                                            double *out_information);
+
+/**
  * Statistical Inlier Estimation on a residual matrix, without registration: P(inlier) per row.
  *
  * `residuals`: rows x cols doubles, row-major (one row per correspondence, one column per

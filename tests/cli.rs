@@ -488,6 +488,91 @@ fn pcd_binary_compressed_and_ply_ascii_files_register_alike() {
     }
 }
 
+/// `--json` reports the pose's covariance and information as 6 rows of 6 numbers, with the
+/// convention, and they are the library's for the same files and settings (to 1e-12 of their
+/// largest entry: the core sums over a HashMap, whose order differs between runs).
+#[test]
+fn json_reports_the_pose_covariance_and_information_of_the_library() {
+    let dir = scratch("covariance");
+    let scene = sie::synthetic::room_scene(1500, 0.01, 5);
+    let mut files = Vec::new();
+    for (name, points) in [("source.pcd", &scene.source), ("target.pcd", &scene.target)] {
+        let mut bytes = pcd_header(points.len(), "binary").into_bytes();
+        bytes.extend(float_bytes(points.iter().flatten().copied()));
+        let path = dir.join(name);
+        fs::write(&path, bytes).unwrap();
+        files.push(path);
+    }
+    for metric in [sie::Metric::PointToPlane, sie::Metric::PointToPoint] {
+        let metric_arg = match metric {
+            sie::Metric::PointToPlane => "point-to-plane",
+            sie::Metric::PointToPoint => "point-to-point",
+        };
+        let output = sie(&[
+            "register",
+            arg(&files[0]),
+            arg(&files[1]),
+            "--metric",
+            metric_arg,
+            "--json",
+            "-q",
+        ]);
+        assert!(
+            matches!(output.status.code(), Some(0 | 3)),
+            "{}",
+            text(&output.stderr)
+        );
+        let report = json(&output);
+        let matrix = |key: &str| {
+            let rows = report[key]
+                .as_array()
+                .unwrap_or_else(|| panic!("{key}: {report}"));
+            assert_eq!(rows.len(), 6, "{key}");
+            for row in rows {
+                assert_eq!(row.as_array().expect("a row").len(), 6, "{key}");
+            }
+            nalgebra::Matrix6::from_fn(|r, c| rows[r][c].as_f64().expect("a number"))
+        };
+        let (covariance, information) = (matrix("covariance"), matrix("information"));
+        let convention = report["pose_perturbation"].as_str().expect("the convention");
+        for words in ["left", "rotation vector", "rotation first", "target frame"] {
+            assert!(convention.contains(words), "{convention}");
+        }
+
+        let config = sie::RegistrationConfig {
+            metric,
+            ..sie::RegistrationConfig::default()
+        };
+        let source = read_cloud(&files[0]).unwrap().points;
+        let target = read_cloud(&files[1]).unwrap().points;
+        let library =
+            sie::register_clouds(&source, &target, None, None, &config, sie::Hooks::default()).unwrap();
+        // serde_json's default parser may round a number's last bit.
+        let transform_difference = (json_transform(&report) - library.transform).abs().max();
+        assert!(
+            transform_difference <= 1e-15,
+            "{metric_arg}: {transform_difference:e}"
+        );
+        for (name, got, want) in [
+            ("covariance", covariance, library.uncertainty.covariance),
+            ("information", information, library.uncertainty.information),
+        ] {
+            let difference = (got - want).abs().max() / want.abs().max();
+            assert!(
+                difference <= 1e-12,
+                "{metric_arg} {name}: {difference:e}\n{got}{want}"
+            );
+        }
+        assert!(
+            (covariance * information - nalgebra::Matrix6::identity())
+                .abs()
+                .max()
+                < 1e-9,
+            "{metric_arg}"
+        );
+    }
+}
+
 #[test]
 fn demo_registers_the_synthetic_room() {
     let output = sie(&["demo", "--points", "3000"]);

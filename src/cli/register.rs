@@ -19,8 +19,9 @@ use super::args::{RegisterArgs, pose_matrix};
 use super::plot::{PlotFormat, PlotText, write_plot};
 use super::progress::{InterruptScope, Progress, install_interrupt_handler};
 use super::report::{
-    CloudReport, GroundTruthError, JsonReport, SummaryContext, TraceRow, format_transform, json_stop_reason,
-    pose_error, quality_report, search_row, significant, summary, transform_rows,
+    CloudReport, GroundTruthError, JsonReport, POSE_PERTURBATION, SummaryContext, TraceRow, format_transform,
+    json_stop_reason, matrix6_rows, pose_error, quality_report, search_row, significant, summary,
+    transform_rows,
 };
 use super::{CliError, exit};
 
@@ -279,6 +280,9 @@ fn print_report(
             ground_truth_correction: inputs.truth.map(|rigid| rigid.correction),
             quality: quality_report(result),
             search: search_row(result),
+            covariance: matrix6_rows(&result.uncertainty.covariance),
+            information: matrix6_rows(&result.uncertainty.information),
+            pose_perturbation: POSE_PERTURBATION,
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;

@@ -2,7 +2,7 @@
 //! document for scripts.
 use std::fmt::Write as _;
 
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Matrix6};
 use serde::Serialize;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
@@ -136,6 +136,13 @@ pub struct JsonReport<'a> {
     pub quality: QualityReport,
     /// Where the pose came from (`--starts automatic` runs several starts).
     pub search: SearchRow,
+    /// The pose's 6 × 6 covariance (`covariance[row][col]`) in the order and frame that
+    /// `pose_perturbation` states; all zeros when too few residuals were weighted.
+    pub covariance: [[f64; 6]; 6],
+    /// Its inverse where the data constrain the pose (near 0 in directions they leave free).
+    pub information: [[f64; 6]; 6],
+    /// [`POSE_PERTURBATION`].
+    pub pose_perturbation: &'static str,
     /// One row per update of every start with `--trace`, else empty.
     pub trace: Vec<TraceRow>,
 }
@@ -277,6 +284,15 @@ pub fn json_stop_reason(reason: StopReason) -> &'static str {
         StopReason::Degenerate => "degenerate",
         StopReason::Cancelled => "cancelled",
     }
+}
+
+/// What `covariance` and `information` of the JSON report describe.
+pub const POSE_PERTURBATION: &str = "left: T = Exp(d) * transform with d = (rotation vector [rad], translation \
+     [input units]), rotation first, both in the target frame";
+
+/// A 6 × 6 matrix as rows.
+pub fn matrix6_rows(m: &Matrix6<f64>) -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
 }
 
 pub fn transform_rows(t: &Matrix4<f64>) -> [[f64; 4]; 4] {
