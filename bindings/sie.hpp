@@ -284,8 +284,8 @@ struct Summary {
  * matrices in ROW-major order (M[6*row + col]), for the left perturbation
  * T = Exp(d) * T_hat of the returned T_target_source with d = (w, v): the rotation vector w
  * (radians, rows/columns 0..2) first, then the translation v (3..5), both in the target frame
- * and in the input's units. Directions the inliers leave free have a huge variance and an
- * information near 0. All zeros when the result had too few weighted residuals.
+ * and in the input's units. Directions the inliers leave free have a far larger variance and a
+ * far smaller information (sie.h). All zeros when the result had too few weighted residuals.
  */
 struct PoseUncertainty {
     /** Cov(d): rad^2, rad*length, length^2. */

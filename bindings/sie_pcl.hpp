@@ -234,7 +234,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
      * Covariance of the last align()'s getFinalTransformation(), 6x6, ROTATION FIRST: the left
      * perturbation T = Exp(d) * T_final with d = (rotation vector [rad], translation [input
      * units]), both in the target frame (sie_context_get_pose_uncertainty). Directions the
-     * inliers leave free have a huge variance. Zero when the last align() failed.
+     * inliers leave free have a far larger variance. Zero when the last align() failed.
      */
     const Eigen::Matrix<double, 6, 6> &getPoseCovariance() const noexcept { return pose_covariance_; }
     /** The inverse of getPoseCovariance() where the data constrain the pose (near 0 in free

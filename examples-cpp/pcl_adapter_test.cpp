@@ -278,6 +278,7 @@ int main() {
     CHECK(covariance(0, 3) == from_context.covariance[3] && covariance(3, 0) == from_context.covariance[18]);
     CHECK((covariance - covariance.transpose()).cwiseAbs().maxCoeff() <= 1e-12 * covariance.cwiseAbs().maxCoeff());
     CHECK(covariance.llt().info() == Eigen::Success);
+    CHECK(covariance.diagonal().maxCoeff() < 1e-4 && information.diagonal().minCoeff() > 1e4);
     CHECK((covariance * information - Eigen::Matrix<double, 6, 6>::Identity()).cwiseAbs().maxCoeff() < 1e-9);
     std::printf("pose standard deviations: %.2e %.2e %.2e rad, %.2e %.2e %.2e m\n", std::sqrt(covariance(0, 0)),
                 std::sqrt(covariance(1, 1)), std::sqrt(covariance(2, 2)), std::sqrt(covariance(3, 3)),

@@ -1291,13 +1291,15 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
  * covariance in rad^2, rad*length and length^2; the information in their inverses). To first
  * order, p_target moves by w x p_target + v.
  *
- * It is the weighted least-squares covariance of the final inliers: their residuals weighted
- * by P(inlier) and the noise scales, with the variance measured from those residuals (so it
- * holds whatever noise shape was fitted). Directions the inliers leave free (sliding along a
- * plane, turning about a symmetry axis) get a variance far above every constrained one and an
- * information near 0; check `sie_summary.conditioning` and `verdict` as well. Both matrices
- * are all zeros when the result has too few weighted residuals to measure a variance (e.g. a
- * baseline cost that weighted none).
+ * It is computed from the final inliers: their residuals weighted by P(inlier) and the noise
+ * scales, with the noise variance measured from those residuals (so it holds whatever noise
+ * shape was fitted). Directions the inliers leave free (sliding along a plane, turning about a
+ * symmetry axis) get a far larger variance and a far smaller information than the constrained
+ * ones: by many orders of magnitude with exact normals, but with normals estimated from noisy
+ * points only by about (point spacing / noise)^2, since the normals' scatter seems to hold
+ * the sliding; check `sie_summary.conditioning` and `verdict` as well. Both matrices are all
+ * zeros when the result has too few weighted residuals to measure a variance (e.g. a baseline
+ * cost that weighted none).
  *
  * # Safety
  * `ctx` is NULL or a live context; `out_covariance` and `out_information` are each NULL or

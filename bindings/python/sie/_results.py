@@ -68,9 +68,10 @@ class Registration:
     data constrain the pose) describe the uncertainty of transform: it is perturbed on the
     left, T = expm(hat(d)) @ transform, with d = (w, v), the rotation vector w in radians
     FIRST (rows and columns 0-2), then the translation v (3-5), both in the target frame and
-    in the input's units. Directions the inliers leave free (sliding along a plane) get a huge
-    variance and an information near 0. Both are zeros when the result had too few weighted
-    residuals to measure a variance.
+    in the input's units. Directions the inliers leave free (sliding along a plane) get a far
+    larger variance and a far smaller information than the constrained ones (with estimated
+    normals only by about (point spacing / noise)**2). Both are zeros when the result had too
+    few weighted residuals to measure a variance.
     """
 
     transform: np.ndarray  # 4 x 4 float64, T_target_source
