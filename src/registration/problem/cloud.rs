@@ -17,8 +17,8 @@ use crate::median::median;
 use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::config::{Metric, RegistrationConfig};
-use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
 use crate::registration::covariance::{InformationSum, PoseUncertainty};
+use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
 use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 
