@@ -225,8 +225,16 @@ mod tests {
         let mut sum = InformationSum::about([1.0, 2.0, 3.0], 0.0);
         for k in 0..40 {
             let x = k as f64;
-            let p = [1.0 + (x * 0.37).sin(), 2.0 + (x * 0.91).cos(), 3.0 + (x * 0.13).sin()];
-            let r = [0.01 * (x * 1.7).sin(), -0.02 * (x * 0.3).cos(), 0.005 * (x * 2.9).sin()];
+            let p = [
+                1.0 + (x * 0.37).sin(),
+                2.0 + (x * 0.91).cos(),
+                3.0 + (x * 0.13).sin(),
+            ];
+            let r = [
+                0.01 * (x * 1.7).sin(),
+                -0.02 * (x * 0.3).cos(),
+                0.005 * (x * 2.9).sin(),
+            ];
             sum.add_point(&p, &r, 1.0, 1.0);
         }
         let u = sum.finish();
