@@ -561,7 +561,9 @@ typedef struct sie_summary {
 /**
  * Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
  * point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
- * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
+ * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`. The
+ * points are those the registration works on: dropped ones left out, and a location the
+ * cloud holds several times given once, so `n` can be less than the cloud's count.
  *
  * Called once per cloud per registration (never per point), synchronously on the thread that
  * called the registration function. Return 0 on success; any other value aborts the
@@ -949,9 +951,10 @@ sie_status sie_context_set_skip_non_finite(struct sie_context *ctx, bool enabled
 /**
  * Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
  * `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
- * mark invalid pixels so; they are not measurements, and point-to-point matches them to each
- * other (at residual 0 at the identity). Dropped source points report inlier probability 0
- * and target index -1. Default: false (0 0 0 can be a real point).
+ * mark invalid pixels so; they are not measurements. Kept, all of them are one location, which
+ * counts as one point (as every exact duplicate does), but it still matches the other cloud's
+ * (at residual 0 at the identity). Dropped source points report inlier probability 0 and
+ * target index -1. Default: false (0 0 0 can be a real point).
  *
  * # Safety
  * `ctx` is NULL or a live context.

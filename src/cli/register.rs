@@ -391,8 +391,20 @@ fn cloud_report(path: &Path, cloud: &CloudFile, skip_origin: bool) -> CloudRepor
             true => cloud.points.iter().filter(|p| **p == [0.0; 3]).count(),
             false => 0,
         },
+        repeated: repeated_points(&cloud.points, skip_origin),
         warnings: cloud.warnings.clone(),
     }
+}
+
+/// Kept points (finite, and not 0 0 0 under `--skip-origin`) that repeat an earlier one
+/// exactly (−0.0 equals 0.0), as the registration groups them.
+fn repeated_points(points: &[Point], skip_origin: bool) -> usize {
+    let kept = points
+        .iter()
+        .filter(|p| p.iter().all(|c| c.is_finite()) && !(skip_origin && **p == [0.0; 3]));
+    let mut seen = std::collections::HashSet::with_capacity(points.len());
+    kept.filter(|p| !seen.insert(p.map(|c| (c + 0.0).to_bits())))
+        .count()
 }
 
 fn metric_name(metric: Metric) -> &'static str {

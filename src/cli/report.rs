@@ -53,6 +53,9 @@ pub struct CloudReport {
     pub skipped_non_finite: usize,
     /// Points at exactly 0 0 0 dropped by the registration (`--skip-origin`).
     pub skipped_origin: usize,
+    /// Kept points that repeat another kept point exactly: the registration counts each
+    /// location once (every copy gets its location's results).
+    pub repeated: usize,
     /// What the reader noticed but read past (also printed on stderr, `-q` or not), e.g. a PCD
     /// file holding more points than its header declares.
     pub warnings: Vec<String>,
@@ -321,12 +324,24 @@ pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String 
     let mut text = String::new();
     let cloud = |c: &CloudReport| {
         let skipped = match (c.skipped_non_finite, c.skipped_origin) {
-            (0, 0) => String::new(),
-            (n, 0) => format!(" ({n} non-finite skipped)"),
-            (0, o) => format!(" ({o} at 0 0 0 skipped)"),
-            (n, o) => format!(" ({n} non-finite and {o} at 0 0 0 skipped)"),
+            (0, 0) => None,
+            (n, 0) => Some(format!("{n} non-finite skipped")),
+            (0, o) => Some(format!("{o} at 0 0 0 skipped")),
+            (n, o) => Some(format!("{n} non-finite and {o} at 0 0 0 skipped")),
         };
-        format!("{}: {} points{skipped}", c.path, c.points)
+        let repeated = (c.repeated > 0).then(|| {
+            format!(
+                "{} exact repeats of other points, each location counted once",
+                c.repeated
+            )
+        });
+        let notes: Vec<String> = skipped.into_iter().chain(repeated).collect();
+        let notes = if notes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", notes.join("; "))
+        };
+        format!("{}: {} points{notes}", c.path, c.points)
     };
     let _ = writeln!(text, "source   {}", cloud(context.source));
     let _ = writeln!(
