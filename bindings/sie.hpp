@@ -282,6 +282,21 @@ struct Summary {
     double runner_up_significance = 0.0;
 };
 
+/**
+ * The uncertainty of the last registration's pose (sie_context_get_pose_uncertainty): 6x6
+ * matrices in ROW-major order (M[6*row + col]), for the left perturbation
+ * T = Exp(d) * T_hat of the returned T_target_source with d = (w, v): the rotation vector w
+ * (radians, rows/columns 0..2) first, then the translation v (3..5), both in the target frame
+ * and in the input's units. Directions the inliers leave free have a far larger variance and a
+ * far smaller information (sie.h). All zeros when the result had too few weighted residuals.
+ */
+struct PoseUncertainty {
+    /** Cov(d): rad^2, rad*length, length^2. */
+    std::array<double, 36> covariance{};
+    /** Its inverse where the data constrain the pose (near 0 in free directions). */
+    std::array<double, 36> information{};
+};
+
 /** One fitted SIE histogram and its per-bin arrays (sie_context_get_histogram). */
 struct Histogram {
     sie_model model{};
@@ -642,6 +657,13 @@ class Context {
         s.hypotheses = raw.hypotheses;
         s.runner_up_significance = raw.runner_up_significance;
         return s;
+    }
+
+    /** Covariance and information of the pose (see PoseUncertainty for the convention). */
+    PoseUncertainty pose_uncertainty() const {
+        PoseUncertainty u;
+        check(sie_context_get_pose_uncertainty(get(), u.covariance.data(), u.information.data()));
+        return u;
     }
 
     /** P(inlier) per source point (0 for unmatched points). */

@@ -4,6 +4,7 @@
  *   sie::Context ctx;
  *   Eigen::Matrix4d T = sie::align(ctx, *source, *target);          // any PCL point type with xyz
  *   Eigen::Matrix4d T = sie::align_with_normals(ctx, *source, *target_with_normals);
+ *   Eigen::Matrix<double, 6, 6> cov = sie::to_eigen(ctx.pose_uncertainty().covariance);  // rotation first
  *
  *   sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> icp;         // a pcl::Registration: in place
  *   icp.setInputSource(source); icp.setInputTarget(target);        // of pcl::IterativeClosestPoint
@@ -34,6 +35,7 @@
 #include <pcl/type_traits.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <optional>
 #include <string>
@@ -85,6 +87,12 @@ template <typename PointT> Points normals_view(const pcl::PointCloud<PointT> &cl
 /** Row-major sie::Transform to an Eigen matrix. */
 inline Eigen::Matrix4d to_eigen(const Transform &transform) {
     return Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>>(transform.data());
+}
+
+/** A row-major 6x6 of sie::PoseUncertainty (covariance or information) to an Eigen matrix;
+ * rows and columns 0..2 are the rotation vector, 3..5 the translation. */
+inline Eigen::Matrix<double, 6, 6> to_eigen(const std::array<double, 36> &matrix) {
+    return Eigen::Map<const Eigen::Matrix<double, 6, 6, Eigen::RowMajor>>(matrix.data());
 }
 
 /** Any 4x4 Eigen matrix (float or double, any storage order) to a row-major sie::Transform. */
@@ -150,6 +158,11 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *   getFitnessScore uses (sie matches with its own).
  * - getFitnessScore(max_range) is PCL's own: mean squared nearest-neighbour distance of the
  *   aligned source to the target.
+ * - getPoseCovariance() / getPoseInformation() (sie's; PCL has none): the 6x6 covariance of
+ *   the final transformation and its inverse, ROTATION FIRST: for T = Exp(d) * T_final with
+ *   d = (rotation vector [rad], translation [input units]) in the target frame (a left
+ *   perturbation; GTSAM's Pose3 orders rotation first too but perturbs on the right, in the
+ *   source frame).
  * - registerVisualizationCallback(f): f(source moved by the current transform, source indices,
  *   target, their nearest target points) after every update, like PCL's ICP.
  * - Errors follow PCL: a missing input cloud, too few points or bad input make align() print
@@ -217,6 +230,16 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     const Summary &summary() const noexcept { return summary_; }
     /** sie's inlier-probability-weighted RMSE (input units) of the last align(). */
     double getRmse() const noexcept { return summary_.rmse; }
+    /**
+     * Covariance of the last align()'s getFinalTransformation(), 6x6, ROTATION FIRST: the left
+     * perturbation T = Exp(d) * T_final with d = (rotation vector [rad], translation [input
+     * units]), both in the target frame (sie_context_get_pose_uncertainty). Directions the
+     * inliers leave free have a far larger variance. Zero when the last align() failed.
+     */
+    const Eigen::Matrix<double, 6, 6> &getPoseCovariance() const noexcept { return pose_covariance_; }
+    /** The inverse of getPoseCovariance() where the data constrain the pose (near 0 in free
+     * directions): the information matrix, same order and frame. Zero when align() failed. */
+    const Eigen::Matrix<double, 6, 6> &getPoseInformation() const noexcept { return pose_information_; }
     /** The metric the last align() ended with. */
     Metric getMetricUsed() const noexcept { return metric_used_; }
     /** Why the last align() could not run (empty after a successful one). */
@@ -239,6 +262,8 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         converged_ = false;
         last_error_.reset();
         summary_ = Summary{};
+        pose_covariance_.setZero();
+        pose_information_.setZero();
         final_transformation_ = guess;
         // A subset given by setIndices() is registered on its own (copied); otherwise in place.
         const bool subset = indices_->size() != input_->size();
@@ -254,6 +279,8 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
             last_error_ = error;
             converged_ = false;
             final_transformation_ = guess;
+            pose_covariance_.setZero();
+            pose_information_.setZero();
         }
         move_source(output, final_transformation_);
     }
@@ -361,6 +388,9 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         const Eigen::Matrix4d transform =
             to_eigen(context_.align(xyz_view(source), prepared_.target, to_transform(guess)));
         summary_ = context_.summary();
+        const PoseUncertainty uncertainty = context_.pose_uncertainty();
+        pose_covariance_ = to_eigen(uncertainty.covariance);
+        pose_information_ = to_eigen(uncertainty.information);
         return transform;
     }
 
@@ -447,6 +477,8 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     Metric metric_used_ = Metric::PointToPlane;
     bool tolerances_set_ = false;
     Summary summary_{};
+    Eigen::Matrix<double, 6, 6> pose_covariance_ = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 6> pose_information_ = Eigen::Matrix<double, 6, 6>::Zero();
     std::optional<Error> last_error_;
     Prepared prepared_;
 

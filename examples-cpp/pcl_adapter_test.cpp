@@ -10,6 +10,7 @@
 #include <pcl/registration/incremental_registration.h>
 #include <pcl/search/kdtree.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -268,6 +269,20 @@ int main() {
     base->align(aligned);
     const int iterations_noisy = static_cast<int>(concrete->summary().iterations);
     CHECK(base->hasConverged() && concrete->summary().stop_reason == sie::StopReason::Converged);
+    // The pose's covariance and information (rotation first) as Eigen matrices: the context's,
+    // symmetric, positive definite and inverse to each other on these four planes.
+    const Eigen::Matrix<double, 6, 6> covariance = concrete->getPoseCovariance();
+    const Eigen::Matrix<double, 6, 6> information = concrete->getPoseInformation();
+    const sie::PoseUncertainty from_context = concrete->context().pose_uncertainty();
+    CHECK(covariance == sie::to_eigen(from_context.covariance) && information == sie::to_eigen(from_context.information));
+    CHECK(covariance(0, 3) == from_context.covariance[3] && covariance(3, 0) == from_context.covariance[18]);
+    CHECK((covariance - covariance.transpose()).cwiseAbs().maxCoeff() <= 1e-12 * covariance.cwiseAbs().maxCoeff());
+    CHECK(covariance.llt().info() == Eigen::Success);
+    CHECK(covariance.diagonal().maxCoeff() < 1e-4 && information.diagonal().minCoeff() > 1e4);
+    CHECK((covariance * information - Eigen::Matrix<double, 6, 6>::Identity()).cwiseAbs().maxCoeff() < 1e-9);
+    std::printf("pose standard deviations: %.2e %.2e %.2e rad, %.2e %.2e %.2e m\n", std::sqrt(covariance(0, 0)),
+                std::sqrt(covariance(1, 1)), std::sqrt(covariance(2, 2)), std::sqrt(covariance(3, 3)),
+                std::sqrt(covariance(4, 4)), std::sqrt(covariance(5, 5)));
 
     // setTransformationEpsilon: PCL's squared-translation threshold; looser stops earlier.
     base->setTransformationEpsilon(1e-4); // translation <= 1 cm, rotation <= acos(1 - 1e-4) = 0.8 deg
@@ -328,6 +343,7 @@ int main() {
     CHECK(!base->hasConverged());
     CHECK(base->getFinalTransformation() == guess);
     CHECK(concrete->lastError().has_value() && concrete->lastError()->status() == sie::Status::TooFewPoints);
+    CHECK(concrete->getPoseCovariance().isZero(0.0) && concrete->getPoseInformation().isZero(0.0));
     CHECK(aligned.size() == 2 && aligned.points[1].x == 1.25f);
 
     pcl::PointCloud<pcl::PointXYZ> never_aligned;

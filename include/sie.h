@@ -561,7 +561,9 @@ typedef struct sie_summary {
 /**
  * Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
  * point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
- * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
+ * cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`. The
+ * points are those the registration works on: dropped ones left out, and a location the
+ * cloud holds several times given once, so `n` can be less than the cloud's count.
  *
  * Called once per cloud per registration (never per point), synchronously on the thread that
  * called the registration function. Return 0 on success; any other value aborts the
@@ -949,9 +951,10 @@ sie_status sie_context_set_skip_non_finite(struct sie_context *ctx, bool enabled
 /**
  * Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
  * `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
- * mark invalid pixels so; they are not measurements, and point-to-point matches them to each
- * other (at residual 0 at the identity). Dropped source points report inlier probability 0
- * and target index -1. Default: false (0 0 0 can be a real point).
+ * mark invalid pixels so; they are not measurements. Kept, all of them are one location, which
+ * counts as one point (as every exact duplicate does), but it still matches the other cloud's
+ * (at residual 0 at the identity). Dropped source points report inlier probability 0 and
+ * target index -1. Default: false (0 0 0 can be a real point).
  *
  * # Safety
  * `ctx` is NULL or a live context.
@@ -1277,6 +1280,37 @@ sie_status sie_context_get_trace(const struct sie_context *ctx,
                                  struct sie_trace_entry *out,
                                  size_t capacity,
                                  size_t *out_len);
+
+/**
+ * Copies the uncertainty of the last successful registration's pose: its 6x6 covariance to
+ * `out_covariance` and its inverse, the information matrix, to `out_information`, each as 36
+ * doubles in ROW-major order (M[6*row + col]). Either pointer may be NULL to skip that
+ * matrix, not both (NULL_ARGUMENT); two buffers that overlap are INVALID_ARGUMENT. Nothing is
+ * written unless the call succeeds.
+ *
+ * Convention: the returned T_target_source is perturbed on the LEFT, T = Exp(d) * T_hat, with
+ * d = (w, v): w the rotation vector (radians, rows/columns 0..2) FIRST, then v the
+ * translation (rows/columns 3..5), both in the TARGET frame and in the caller's units (the
+ * covariance in rad^2, rad*length and length^2; the information in their inverses). To first
+ * order, p_target moves by w x p_target + v.
+ *
+ * It is computed from the final inliers: their residuals weighted by P(inlier) and the noise
+ * scales, with the noise variance measured from those residuals (so it holds whatever noise
+ * shape was fitted). Directions the inliers leave free (sliding along a plane, turning about a
+ * symmetry axis) get a far larger variance and a far smaller information than the constrained
+ * ones: by many orders of magnitude with exact normals, but with normals estimated from noisy
+ * points only by about (point spacing / noise)^2, since the normals' scatter seems to hold
+ * the sliding; check `sie_summary.conditioning` and `verdict` as well. Both matrices are all
+ * zeros when the result has too few weighted residuals to measure a variance (e.g. a baseline
+ * cost that weighted none).
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `out_covariance` and `out_information` are each NULL or
+ * writable for 36 doubles.
+ */
+sie_status sie_context_get_pose_uncertainty(const struct sie_context *ctx,
+                                            double *out_covariance,
+                                            double *out_information);
 
 /**
  * Statistical Inlier Estimation on a residual matrix, without registration: P(inlier) per row.

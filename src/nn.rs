@@ -65,15 +65,21 @@ pub struct NearestNeighbours {
 
 /// The input indices at each distinct location, in ascending order:
 /// `members[offsets[l]..offsets[l + 1]]` for location l.
-struct Locations {
+pub(crate) struct Locations {
     offsets: Vec<u32>,
     members: Vec<u32>,
 }
 
 impl Locations {
-    fn of(&self, location: u32) -> &[u32] {
+    /// The input indices at `location`, ascending (the first is its first appearance).
+    pub(crate) fn of(&self, location: u32) -> &[u32] {
         let l = location as usize;
         &self.members[self.offsets[l] as usize..self.offsets[l + 1] as usize]
+    }
+
+    /// Number of distinct locations.
+    pub(crate) fn count(&self) -> usize {
+        self.offsets.len() - 1
     }
 }
 
@@ -94,6 +100,16 @@ impl NearestNeighbours {
     /// error ([`Error::InvalidArgument`]), a non-finite coordinate (it would corrupt the tree's
     /// splits; [`Error::NonFinite`]), no memory for the duplicate table ([`Error::OutOfMemory`]).
     pub fn new(points: &[Point]) -> Result<Self, Error> {
+        Self::build(points, true)
+    }
+
+    /// [`NearestNeighbours::new`] on points the caller has already made distinct (a prepared
+    /// target): the duplicate table's pass is skipped.
+    pub(crate) fn of_distinct(points: &[Point]) -> Result<Self, Error> {
+        Self::build(points, false)
+    }
+
+    fn build(points: &[Point], may_repeat: bool) -> Result<Self, Error> {
         if points.len() > u32::MAX as usize {
             return Err(Error::InvalidArgument(format!(
                 "nearest-neighbour index: {} points exceed the limit of {}",
@@ -116,7 +132,11 @@ impl NearestNeighbours {
                 c
             }
         };
-        let locations = distinct_locations(points)?;
+        let locations = if may_repeat {
+            distinct_locations(points)?
+        } else {
+            None
+        };
         let builder = Tree::builder().with_serial_construction();
         let tree = match &locations {
             None if scale == 1.0 && !clamped => builder.build_from_slice(points),
@@ -343,12 +363,13 @@ fn length_without_overflow(v: &Point, largest: f64) -> f64 {
     largest * (unit[0] * unit[0] + unit[1] * unit[1] + unit[2] * unit[2]).sqrt()
 }
 
-/// Groups exact duplicates (−0.0 equals 0.0): `None` when every point is distinct, otherwise
-/// each distinct location with its input indices, locations in order of first appearance.
+/// Groups exact duplicates (−0.0 equals 0.0; points with the same non-finite bits group too):
+/// `None` when every point is distinct, otherwise each distinct location with its input
+/// indices, locations in order of first appearance.
 ///
 /// Open addressing over u32 ids (load ≤ 2/3): 6–12 bytes per point while it runs, one pass
 /// when nothing repeats (the common case).
-fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, MemoryError> {
+pub(crate) fn distinct_locations(points: &[Point]) -> Result<Option<Locations>, MemoryError> {
     let n = points.len();
     if n < 2 {
         return Ok(None);

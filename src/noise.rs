@@ -30,7 +30,9 @@ const MIN_DEPTH_SIGMA: f64 = 1e-6;
 /// Supplies per-point relative noise σ for a whole cloud in one call (never per point).
 pub trait NoiseScales {
     /// Fills `out[i]` with the relative noise σ of `points[i]` (given in that cloud's own
-    /// frame). Values must be finite and > 0; an `Err` aborts the registration.
+    /// frame). The points are the ones the registration works on: dropped ones are left out
+    /// and ICP gives a location the cloud holds several times once. Values must be finite and
+    /// > 0; an `Err` aborts the registration.
     fn point_sigmas(&mut self, cloud: CloudRole, points: &[[f64; 3]], out: &mut [f64]) -> Result<(), String>;
 }
 

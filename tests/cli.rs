@@ -488,6 +488,118 @@ fn pcd_binary_compressed_and_ply_ascii_files_register_alike() {
     }
 }
 
+/// The numbers of the array `key` of a JSON document, in order, parsed exactly from its text.
+fn exact_numbers(json: &str, key: &str) -> Vec<f64> {
+    let start = json
+        .find(&format!("\"{key}\": ["))
+        .unwrap_or_else(|| panic!("no {key} in {json}"));
+    let array = &json[start + key.len() + 4..];
+    let mut depth = 0;
+    let end = array
+        .char_indices()
+        .find(|&(_, c)| {
+            match c {
+                '[' => depth += 1,
+                ']' => depth -= 1,
+                _ => {}
+            }
+            depth == 0
+        })
+        .expect("a closed array")
+        .0;
+    array[..end]
+        .split(|c: char| c == '[' || c == ']' || c == ',' || c.is_whitespace())
+        .filter(|token| !token.is_empty())
+        .map(|token| token.parse().expect("a number"))
+        .collect()
+}
+
+/// `--json` reports the pose's covariance and information as 6 rows of 6 numbers, with the
+/// convention, and they are the library's for the same files and settings, bit for bit.
+#[test]
+fn json_reports_the_pose_covariance_and_information_of_the_library() {
+    let dir = scratch("covariance");
+    let scene = sie::synthetic::room_scene(1500, 0.01, 5);
+    let mut files = Vec::new();
+    for (name, points) in [("source.pcd", &scene.source), ("target.pcd", &scene.target)] {
+        let mut bytes = pcd_header(points.len(), "binary").into_bytes();
+        bytes.extend(float_bytes(points.iter().flatten().copied()));
+        let path = dir.join(name);
+        fs::write(&path, bytes).unwrap();
+        files.push(path);
+    }
+    for metric in [sie::Metric::PointToPlane, sie::Metric::PointToPoint] {
+        let metric_arg = match metric {
+            sie::Metric::PointToPlane => "point-to-plane",
+            sie::Metric::PointToPoint => "point-to-point",
+        };
+        let output = sie(&[
+            "register",
+            arg(&files[0]),
+            arg(&files[1]),
+            "--metric",
+            metric_arg,
+            "--json",
+            "-q",
+        ]);
+        assert!(
+            matches!(output.status.code(), Some(0 | 3)),
+            "{}",
+            text(&output.stderr)
+        );
+        let report = json(&output);
+        let matrix = |key: &str| {
+            let rows = report[key]
+                .as_array()
+                .unwrap_or_else(|| panic!("{key}: {report}"));
+            assert_eq!(rows.len(), 6, "{key}");
+            for row in rows {
+                assert_eq!(row.as_array().expect("a row").len(), 6, "{key}");
+            }
+            nalgebra::Matrix6::from_fn(|r, c| rows[r][c].as_f64().expect("a number"))
+        };
+        let (covariance, information) = (matrix("covariance"), matrix("information"));
+        let convention = report["pose_perturbation"].as_str().expect("the convention");
+        for words in ["left", "rotation vector", "rotation first", "target frame"] {
+            assert!(convention.contains(words), "{convention}");
+        }
+
+        let config = sie::RegistrationConfig {
+            metric,
+            ..sie::RegistrationConfig::default()
+        };
+        let source = read_cloud(&files[0]).unwrap().points;
+        let target = read_cloud(&files[1]).unwrap().points;
+        let library =
+            sie::register_clouds(&source, &target, None, None, &config, sie::Hooks::default()).unwrap();
+        // Bit for bit, read from the text (serde_json's default parser may be a few units in
+        // the last place off).
+        let stdout = text(&output.stdout);
+        assert_eq!(
+            exact_numbers(&stdout, "transform"),
+            library.transform.transpose().as_slice(),
+            "{metric_arg}"
+        );
+        for (name, want) in [
+            ("covariance", library.uncertainty.covariance),
+            ("information", library.uncertainty.information),
+        ] {
+            assert_eq!(
+                exact_numbers(&stdout, name),
+                want.transpose().as_slice(),
+                "{metric_arg} {name}"
+            );
+        }
+        assert!(
+            (covariance * information - nalgebra::Matrix6::identity())
+                .abs()
+                .max()
+                < 1e-9,
+            "{metric_arg}"
+        );
+    }
+}
+
 #[test]
 fn demo_registers_the_synthetic_room() {
     let output = sie(&["demo", "--points", "3000"]);

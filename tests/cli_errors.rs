@@ -168,7 +168,8 @@ fn pcd_holding_more_points_than_declared_is_read_with_a_warning() {
     fs::write(&file, contents).unwrap();
     let output = sie(&["register", arg(&file), arg(&file), "--json", "-q"]);
     let stderr = text(&output.stderr);
-    assert_eq!(output.status.code(), Some(0), "{stderr}");
+    // Read and registered (8 points onto themselves show no surfaces: any verdict), not refused.
+    assert!(matches!(output.status.code(), Some(0 | 1 | 3)), "{stderr}");
     assert!(
         stderr.contains("sie: warning:") && stderr.contains("more.pcd") && stderr.contains("10 points"),
         "{stderr}"

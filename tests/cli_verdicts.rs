@@ -189,3 +189,47 @@ fn a_planar_patch_is_not_good() {
     let expected = if report["converged"] == true { 3 } else { 1 };
     assert_eq!(output.status.code(), Some(expected), "{}", text(&output.stderr));
 }
+
+/// The room written with every point twice (as PCL's room scans store theirs) gives the
+/// transform and the verdict it gives written once, exit 0, and the report counts the
+/// repeats: each location counted once.
+#[test]
+fn a_room_stored_twice_is_good_like_stored_once_and_its_repeats_are_counted() {
+    let dir = scratch("verdict-twice");
+    let (source, target, _) = room_files(&dir, 3000);
+    let once = sie(&["register", arg(&source), arg(&target), "--json", "-q"]);
+    assert_eq!(once.status.code(), Some(0), "{}", text(&once.stderr));
+    let twice_files: Vec<PathBuf> = [&source, &target]
+        .iter()
+        .map(|path| {
+            let contents = fs::read_to_string(path).unwrap();
+            let doubled = dir.join(format!("twice_{}", path.file_name().unwrap().to_string_lossy()));
+            fs::write(&doubled, format!("{contents}{contents}")).unwrap();
+            doubled
+        })
+        .collect();
+    let twice = sie(&[
+        "register",
+        arg(&twice_files[0]),
+        arg(&twice_files[1]),
+        "--json",
+        "-q",
+    ]);
+    assert_eq!(twice.status.code(), Some(0), "{}", text(&twice.stderr));
+    let (once, twice) = (json(&once), json(&twice));
+    assert_eq!(twice["transform"], once["transform"]);
+    assert_eq!(twice["quality"]["verdict"], "good");
+    assert_eq!(
+        twice["quality"]["sigma_to_spacing"],
+        once["quality"]["sigma_to_spacing"]
+    );
+    for cloud in ["source", "target"] {
+        assert_eq!(once[cloud]["repeated"], 0, "{cloud}");
+        assert_eq!(twice[cloud]["repeated"], once[cloud]["points"], "{cloud}");
+        assert_eq!(
+            twice[cloud]["points"],
+            2 * once[cloud]["points"].as_u64().unwrap(),
+            "{cloud}"
+        );
+    }
+}

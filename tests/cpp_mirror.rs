@@ -407,3 +407,45 @@ fn every_c_enum_has_an_enum_class_with_all_its_values() {
         problems.join("\n  ")
     );
 }
+
+/// The names of the functions sie.h declares.
+fn c_functions() -> Vec<String> {
+    let code = without_comments(&read("include/sie.h"));
+    let mut names: Vec<String> = code
+        .match_indices("sie_")
+        .filter(|&(start, _)| {
+            // A declaration: the name is followed by `(` and preceded by a return type on the
+            // same line (`sie_status sie_context_new(` ...), not by another identifier's tail.
+            let line_start = code[..start].rfind('\n').map_or(0, |i| i + 1);
+            let before = code[line_start..start].trim_end();
+            !before.is_empty() && !before.starts_with('#') && !before.ends_with(['(', ','])
+        })
+        .filter_map(|(start, _)| {
+            let name: String = code[start..]
+                .chars()
+                .take_while(|c| c.is_alphanumeric() || *c == '_')
+                .collect();
+            code[start + name.len()..].starts_with('(').then_some(name)
+        })
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+/// sie::Context wraps the whole C API: every function of sie.h is called somewhere in sie.hpp
+/// (a new getter without a C++ method fails here).
+#[test]
+fn every_c_function_is_used_by_the_wrapper() {
+    let functions = c_functions();
+    assert!(
+        functions.len() >= 40 && functions.iter().any(|f| f == "sie_context_get_pose_uncertainty"),
+        "sie.h functions: {functions:?}"
+    );
+    let code = without_comments(&read("bindings/sie.hpp"));
+    let unused: Vec<_> = functions
+        .iter()
+        .filter(|name| !code.contains(&format!("{name}(")) && !code.contains(&format!("&{name})")))
+        .collect();
+    assert!(unused.is_empty(), "bindings/sie.hpp never calls {unused:?}");
+}

@@ -19,8 +19,9 @@ use super::args::{RegisterArgs, pose_matrix};
 use super::plot::{PlotFormat, PlotText, write_plot};
 use super::progress::{InterruptScope, Progress, install_interrupt_handler};
 use super::report::{
-    CloudReport, GroundTruthError, JsonReport, SummaryContext, TraceRow, format_transform, json_stop_reason,
-    pose_error, quality_report, search_row, significant, summary, transform_rows,
+    CloudReport, GroundTruthError, JsonReport, POSE_PERTURBATION, SummaryContext, TraceRow, format_transform,
+    json_stop_reason, matrix6_rows, pose_error, quality_report, search_row, significant, summary,
+    transform_rows,
 };
 use super::{CliError, exit};
 
@@ -279,6 +280,9 @@ fn print_report(
             ground_truth_correction: inputs.truth.map(|rigid| rigid.correction),
             quality: quality_report(result),
             search: search_row(result),
+            covariance: matrix6_rows(&result.uncertainty.covariance),
+            information: matrix6_rows(&result.uncertainty.information),
+            pose_perturbation: POSE_PERTURBATION,
             trace: result.trace.iter().map(TraceRow::from).collect(),
         };
         let json = serde_json::to_string_pretty(&report).map_err(CliError::new)?;
@@ -387,8 +391,20 @@ fn cloud_report(path: &Path, cloud: &CloudFile, skip_origin: bool) -> CloudRepor
             true => cloud.points.iter().filter(|p| **p == [0.0; 3]).count(),
             false => 0,
         },
+        repeated: repeated_points(&cloud.points, skip_origin),
         warnings: cloud.warnings.clone(),
     }
+}
+
+/// Kept points (finite, and not 0 0 0 under `--skip-origin`) that repeat an earlier one
+/// exactly (−0.0 equals 0.0), as the registration groups them.
+fn repeated_points(points: &[Point], skip_origin: bool) -> usize {
+    let kept = points
+        .iter()
+        .filter(|p| p.iter().all(|c| c.is_finite()) && !(skip_origin && **p == [0.0; 3]));
+    let mut seen = std::collections::HashSet::with_capacity(points.len());
+    kept.filter(|p| !seen.insert(p.map(|c| (c + 0.0).to_bits())))
+        .count()
 }
 
 fn metric_name(metric: Metric) -> &'static str {

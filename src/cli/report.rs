@@ -2,7 +2,7 @@
 //! document for scripts.
 use std::fmt::Write as _;
 
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Matrix6};
 use serde::Serialize;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
 use sie::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
@@ -53,6 +53,9 @@ pub struct CloudReport {
     pub skipped_non_finite: usize,
     /// Points at exactly 0 0 0 dropped by the registration (`--skip-origin`).
     pub skipped_origin: usize,
+    /// Kept points that repeat another kept point exactly: the registration counts each
+    /// location once (every copy gets its location's results).
+    pub repeated: usize,
     /// What the reader noticed but read past (also printed on stderr, `-q` or not), e.g. a PCD
     /// file holding more points than its header declares.
     pub warnings: Vec<String>,
@@ -136,6 +139,13 @@ pub struct JsonReport<'a> {
     pub quality: QualityReport,
     /// Where the pose came from (`--starts automatic` runs several starts).
     pub search: SearchRow,
+    /// The pose's 6 × 6 covariance (`covariance[row][col]`) in the order and frame that
+    /// `pose_perturbation` states; all zeros when too few residuals were weighted.
+    pub covariance: [[f64; 6]; 6],
+    /// Its inverse where the data constrain the pose (near 0 in directions they leave free).
+    pub information: [[f64; 6]; 6],
+    /// [`POSE_PERTURBATION`].
+    pub pose_perturbation: &'static str,
     /// One row per update of every start with `--trace`, else empty.
     pub trace: Vec<TraceRow>,
 }
@@ -280,6 +290,15 @@ pub fn json_stop_reason(reason: StopReason) -> &'static str {
     }
 }
 
+/// What `covariance` and `information` of the JSON report describe.
+pub const POSE_PERTURBATION: &str = "left: T = Exp(d) * transform with d = (rotation vector [rad], translation \
+     [input units]), rotation first, both in the target frame";
+
+/// A 6 × 6 matrix as rows.
+pub fn matrix6_rows(m: &Matrix6<f64>) -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+}
+
 pub fn transform_rows(t: &Matrix4<f64>) -> [[f64; 4]; 4] {
     std::array::from_fn(|r| std::array::from_fn(|c| t[(r, c)]))
 }
@@ -306,12 +325,24 @@ pub fn summary(result: &RegistrationResult, context: &SummaryContext) -> String 
     let mut text = String::new();
     let cloud = |c: &CloudReport| {
         let skipped = match (c.skipped_non_finite, c.skipped_origin) {
-            (0, 0) => String::new(),
-            (n, 0) => format!(" ({n} non-finite skipped)"),
-            (0, o) => format!(" ({o} at 0 0 0 skipped)"),
-            (n, o) => format!(" ({n} non-finite and {o} at 0 0 0 skipped)"),
+            (0, 0) => None,
+            (n, 0) => Some(format!("{n} non-finite skipped")),
+            (0, o) => Some(format!("{o} at 0 0 0 skipped")),
+            (n, o) => Some(format!("{n} non-finite and {o} at 0 0 0 skipped")),
         };
-        format!("{}: {} points{skipped}", c.path, c.points)
+        let repeated = (c.repeated > 0).then(|| {
+            format!(
+                "{} exact repeats of other points, each location counted once",
+                c.repeated
+            )
+        });
+        let notes: Vec<String> = skipped.into_iter().chain(repeated).collect();
+        let notes = if notes.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", notes.join("; "))
+        };
+        format!("{}: {} points{notes}", c.path, c.points)
     };
     let _ = writeln!(text, "source   {}", cloud(context.source));
     let _ = writeln!(

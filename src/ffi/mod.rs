@@ -253,7 +253,9 @@ pub enum sie_cloud {
 
 /// Per-point noise callback: fill `out_sigma[i]` with the relative noise sigma (finite, > 0) of
 /// point i given in `xyz` (3*n packed doubles, in that cloud's own frame, i.e. the source
-/// cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`.
+/// cloud untransformed). `out_sigma` is pre-filled with 1.0. `cloud` is a `sie_cloud`. The
+/// points are those the registration works on: dropped ones left out, and a location the
+/// cloud holds several times given once, so `n` can be less than the cloud's count.
 ///
 /// Called once per cloud per registration (never per point), synchronously on the thread that
 /// called the registration function. Return 0 on success; any other value aborts the

@@ -291,3 +291,84 @@ pub unsafe extern "C" fn sie_context_get_trace(
         unsafe { write_buffer(out, capacity, out_len, &entries, "trace entries") }
     })
 }
+
+/// Copies the uncertainty of the last successful registration's pose: its 6x6 covariance to
+/// `out_covariance` and its inverse, the information matrix, to `out_information`, each as 36
+/// doubles in ROW-major order (M[6*row + col]). Either pointer may be NULL to skip that
+/// matrix, not both (NULL_ARGUMENT); two buffers that overlap are INVALID_ARGUMENT. Nothing is
+/// written unless the call succeeds.
+///
+/// Convention: the returned T_target_source is perturbed on the LEFT, T = Exp(d) * T_hat, with
+/// d = (w, v): w the rotation vector (radians, rows/columns 0..2) FIRST, then v the
+/// translation (rows/columns 3..5), both in the TARGET frame and in the caller's units (the
+/// covariance in rad^2, rad*length and length^2; the information in their inverses). To first
+/// order, p_target moves by w x p_target + v.
+///
+/// It is computed from the final inliers: their residuals weighted by P(inlier) and the noise
+/// scales, with the noise variance measured from those residuals (so it holds whatever noise
+/// shape was fitted). Directions the inliers leave free (sliding along a plane, turning about a
+/// symmetry axis) get a far larger variance and a far smaller information than the constrained
+/// ones: by many orders of magnitude with exact normals, but with normals estimated from noisy
+/// points only by about (point spacing / noise)^2, since the normals' scatter seems to hold
+/// the sliding; check `sie_summary.conditioning` and `verdict` as well. Both matrices are all
+/// zeros when the result has too few weighted residuals to measure a variance (e.g. a baseline
+/// cost that weighted none).
+///
+/// # Safety
+/// `ctx` is NULL or a live context; `out_covariance` and `out_information` are each NULL or
+/// writable for 36 doubles.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn sie_context_get_pose_uncertainty(
+    ctx: *const sie_context,
+    out_covariance: *mut f64,
+    out_information: *mut f64,
+) -> sie_status {
+    // SAFETY: NULL or live per the contract.
+    boundary(unsafe { ctx.as_ref() }, |call| {
+        let outputs = [
+            (out_covariance, "out_covariance"),
+            (out_information, "out_information"),
+        ];
+        if outputs.iter().all(|(ptr, _)| ptr.is_null()) {
+            return Err(FfiError::new(
+                sie_status::NullArgument,
+                "out_covariance and out_information are both NULL: pass at least one",
+            ));
+        }
+        for (ptr, name) in outputs {
+            check_optional_output(ptr, name)?;
+        }
+        if overlap(out_covariance, out_information, POSE_MATRIX_LEN) {
+            return Err(FfiError::invalid(
+                "out_covariance and out_information overlap: each needs its own 36 doubles",
+            ));
+        }
+        let uncertainty = stored_result(&*call.state)?.uncertainty;
+        // nalgebra stores column-major; the transpose's storage is the row-major matrix.
+        let contents = [
+            uncertainty.covariance.transpose(),
+            uncertainty.information.transpose(),
+        ];
+        for ((ptr, _), matrix) in outputs.into_iter().zip(contents) {
+            if !ptr.is_null() {
+                // SAFETY: checked above (aligned, disjoint from the other output) and writable
+                // for 36 doubles per the contract.
+                unsafe { write_output(ptr, matrix.as_slice()) };
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Doubles in one 6x6 matrix of `sie_context_get_pose_uncertainty`.
+const POSE_MATRIX_LEN: usize = 36;
+
+/// Whether two non-NULL arrays of `len` doubles share any byte (by address only).
+fn overlap(a: *mut f64, b: *mut f64, len: usize) -> bool {
+    if a.is_null() || b.is_null() {
+        return false;
+    }
+    let bytes = len * core::mem::size_of::<f64>();
+    let (a, b) = (a.addr(), b.addr());
+    a < b.saturating_add(bytes) && b < a.saturating_add(bytes)
+}

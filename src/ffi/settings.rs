@@ -398,9 +398,10 @@ pub unsafe extern "C" fn sie_context_set_skip_non_finite(ctx: *mut sie_context, 
 
 /// Drop points (pairs, for correspondences) at exactly 0 0 0 the same way as
 /// `sie_context_set_skip_non_finite` drops non-finite ones: organised clouds from depth sensors
-/// mark invalid pixels so; they are not measurements, and point-to-point matches them to each
-/// other (at residual 0 at the identity). Dropped source points report inlier probability 0
-/// and target index -1. Default: false (0 0 0 can be a real point).
+/// mark invalid pixels so; they are not measurements. Kept, all of them are one location, which
+/// counts as one point (as every exact duplicate does), but it still matches the other cloud's
+/// (at residual 0 at the identity). Dropped source points report inlier probability 0 and
+/// target index -1. Default: false (0 0 0 can be a real point).
 ///
 /// # Safety
 /// `ctx` is NULL or a live context.

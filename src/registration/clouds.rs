@@ -9,7 +9,8 @@ use nalgebra::Matrix4;
 use super::config::{Metric, RegistrationConfig};
 use super::hooks::{Hooks, Observer, in_units, with_share};
 use super::input::{
-    Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points, sigma_slices,
+    Selection, Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points,
+    sigma_slices,
 };
 use super::irls::{RunPlan, searches_starts};
 use super::problem::CloudProblem;
@@ -23,7 +24,7 @@ use crate::error::Error;
 use crate::memory;
 use crate::noise::NoiseModel;
 use crate::parallel::Workers;
-use crate::point::Point;
+use crate::point::{NonFinite, Point};
 
 /// ICP of `source` onto `target` (nearest-neighbour matching, kd-tree built once).
 /// `target_normals` (one per target point; zero vectors mark points without a normal) are used
@@ -197,19 +198,24 @@ fn register_to_prepared(
         }
     }
     let source_count = source.len();
-    let source_kept = Skip::of(config).kept_indices(&source);
-    let points: Cow<'_, [Point]> = match &source_kept {
-        Some(kept) => {
-            let picked = kept.iter().map(|&i| source[i as usize]).collect();
+    let skip = Skip::of(config);
+    // Refused with the caller's index, before any point is dropped or merged.
+    if skip.non_finite == NonFinite::Reject {
+        require_finite("source", &source)?;
+    }
+    let selection = Selection::of(&source, skip, "source")?;
+    let kept_points = selection.as_ref().map_or(source_count, Selection::kept_points);
+    require_points("source", kept_points, 3)?;
+    let points: Cow<'_, [Point]> = match &selection {
+        Some(selection) => {
+            let picked = selection.first().iter().map(|&i| source[i as usize]).collect();
             drop(source);
             Cow::Owned(picked)
         }
         None => source,
     };
-    require_points("source", points.len(), 3)?;
-    require_finite("source", &points)?;
     let init = checked_initial_guess(init)?;
-    let share = points.len() as f64 / source_count.max(1) as f64;
+    let share = selection.as_ref().map_or(1.0, Selection::share);
     let result = with_share(hooks, share, |hooks| {
         let target_points = if hooks.noise.is_some() || config.noise != NoiseModel::Constant {
             target.points_in_caller_order()
@@ -256,11 +262,12 @@ fn register_to_prepared(
         units.result_out(&mut result);
         Ok(result)
     })?;
-    if source_kept.is_none() && target.kept().is_none() {
+    if selection.is_none() && target.kept().is_none() {
         return Ok(result);
     }
-    let source_map = source_kept.unwrap_or_else(|| (0..source_count as u32).collect());
-    Ok(expand(result, &source_map, source_count, target.kept()))
+    let selection =
+        selection.unwrap_or_else(|| Selection::of_kept((0..source_count as u32).collect(), source_count));
+    Ok(expand(result, &selection, source_count, target.kept()))
 }
 
 /// ICP on a built problem (target index and normals ready): a warm start's run first when the

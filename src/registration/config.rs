@@ -79,9 +79,10 @@ pub struct RegistrationConfig {
     /// report probability 0 and no match; a non-finite target normal counts as "no normal".
     pub non_finite: NonFinite,
     /// Drop points (or pairs) at exactly (0, 0, 0) the same way: organised clouds from depth
-    /// sensors mark invalid pixels so. They are not measurements, and with both clouds from the
-    /// same sensor point-to-point matches them to each other (at residual 0 at the identity).
-    /// Off by default: 0 0 0 can be a real point.
+    /// sensors and LiDAR drivers mark invalid returns so. They are not measurements. Kept, they
+    /// are one location, which ICP counts as one point (as every exact duplicate), but with
+    /// both clouds from the same sensor it still matches the other's (at residual 0 at the
+    /// identity). Off by default: 0 0 0 can be a real point.
     pub skip_origin: bool,
 }
 

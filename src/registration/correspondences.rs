@@ -8,7 +8,8 @@ use nalgebra::Matrix4;
 use super::config::RegistrationConfig;
 use super::hooks::{Hooks, Observer, in_units, with_share};
 use super::input::{
-    Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points, sigma_slices,
+    Selection, Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points,
+    sigma_slices,
 };
 use super::irls::{RunPlan, searches_starts};
 use super::problem::CorrespondenceProblem;
@@ -71,11 +72,11 @@ fn register_kept_pairs(
     }
     let pick = |points: &[Point]| kept.iter().map(|&i| points[i as usize]).collect::<Vec<_>>();
     let (source_kept, target_kept) = (pick(source), pick(target));
-    let share = kept.len() as f64 / source.len() as f64;
-    let result = with_share(hooks, share, |hooks| {
+    let kept = Selection::of_kept(kept, source.len());
+    let result = with_share(hooks, kept.share(), |hooks| {
         register_pairs(&source_kept, &target_kept, init, config, hooks)
     })?;
-    Ok(expand(result, &kept, source.len(), Some(&kept)))
+    Ok(expand(result, &kept, source.len(), Some(kept.first())))
 }
 
 /// Registration of pairs that are all kept: checked, in safe units, on their problem.

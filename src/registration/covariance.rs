@@ -12,7 +12,7 @@
 //! eigenvalue [`FREE_EIGENVALUE_RATIO`] times the largest, far above every constrained one, and
 //! the information matrix H/σ̂² keeps them near 0.
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
@@ -88,8 +88,9 @@ pub(crate) struct InformationSum {
     residuals: usize,
     /// Side of the cells whose rows' errors are taken as correlated (0: each point alone).
     cell: f64,
-    /// Σ P_i J_iᵀ r_i / F_i² per cell (the score of the cell's rows).
-    scores: HashMap<[i64; 3], Vector6<f64>>,
+    /// Σ P_i J_iᵀ r_i / F_i² per cell (the score of the cell's rows); ordered, so that the
+    /// sum over cells is the same bits in every run (a hash map's order is random).
+    scores: BTreeMap<[i64; 3], Vector6<f64>>,
     /// The score of the point being added (point-to-point adds three rows).
     point_score: Vector6<f64>,
 }
@@ -105,7 +106,7 @@ impl InformationSum {
             weight: 0.0,
             residuals: 0,
             cell,
-            scores: HashMap::new(),
+            scores: BTreeMap::new(),
             point_score: Vector6::zeros(),
         }
     }

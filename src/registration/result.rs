@@ -116,15 +116,17 @@ pub struct RegistrationResult {
     pub penalty: f64,
     /// Final noise shape p (2 unless estimated).
     pub noise_shape: f64,
-    /// Σ_i P(I|r_i) / n_source at the returned transform (unmatched points count 0).
+    /// Σ_i P(I|r_i) / n_source at the returned transform (unmatched and dropped points count
+    /// 0). ICP counts each distinct source location once (copies of a point are one point).
     pub inlier_fraction: f64,
     /// sqrt(Σ P_i‖r_i‖² / Σ P_i) at the returned transform, input units (‖r‖ is the plane
     /// distance for point-to-plane).
     pub rmse: f64,
     /// Per source point, P(I|r) at the returned transform (0 if unmatched). For baseline costs:
-    /// the IRLS weight divided by the largest weight.
+    /// the IRLS weight divided by the largest weight. Copies of a point share its value.
     pub probabilities: Vec<f64>,
-    /// Per source point, the matched target index (-1 if unmatched).
+    /// Per source point, the matched target index (-1 if unmatched); a target location the
+    /// caller gave several times is named by its first index.
     pub correspondences: Vec<i64>,
     /// Last fitted histograms (SIE only), for the paper's Fig. 1.
     pub histograms: Vec<HistogramModel>,

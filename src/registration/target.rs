@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 use super::config::{RegistrationConfig, require_normal_neighbours};
-use super::input::{Skip, require_finite, require_points, require_unit_normals};
+use super::input::{Selection, Skip, require_finite, require_points, require_unit_normals};
 use super::units::Units;
 use crate::error::Error;
 use crate::geometry::is_finite;
@@ -70,7 +70,8 @@ pub struct PreparedTarget {
     points: Vec<Point>,
     /// `points[t]` is kept point `order[t]` (kept points are numbered in the caller's order).
     order: Vec<u32>,
-    /// The caller's index of each kept point when non-finite points were dropped.
+    /// The caller's index of each kept point when points were dropped (non-finite, the
+    /// origin) or merged (exact copies: each location is kept once, as its first copy).
     kept: Option<Vec<u32>>,
     /// Points the caller gave, dropped ones included.
     given_count: usize,
@@ -214,11 +215,23 @@ impl PreparedTarget {
                 "preparing this target",
             )?;
         }
-        let kept = Skip {
+        let skip = Skip {
             non_finite: options.non_finite,
             origin: options.skip_origin,
+        };
+        // Refused with the caller's index, before any point is dropped or merged.
+        if skip.non_finite == NonFinite::Reject {
+            require_finite("target", target)?;
         }
-        .kept_indices(target);
+        // Each distinct location once (see `Selection`): normals from distinct neighbours, the
+        // spacing that of distinct locations, one match per location.
+        let selection = Selection::of(target, skip, "target")?;
+        require_points(
+            "target",
+            selection.as_ref().map_or(target.len(), Selection::kept_points),
+            3,
+        )?;
+        let kept = selection.map(Selection::into_first);
         let pick = |points: &[Point], what: &str| -> Result<Vec<Point>, MemoryError> {
             let mut picked = try_vec(kept.as_ref().map_or(points.len(), Vec::len), what)?;
             match &kept {
@@ -227,14 +240,12 @@ impl PreparedTarget {
             }
             Ok(picked)
         };
-        // Copies only when points are dropped.
+        // Copies only when points are dropped or merged.
         let kept_points = match kept {
             Some(_) => Some(pick(target, "the target's kept points")?),
             None => None,
         };
         let points = kept_points.as_deref().unwrap_or(target);
-        require_points("target", points.len(), 3)?;
-        require_finite("target", points)?;
         let kept_normals: Option<Vec<Point>> = match (normals, options.non_finite) {
             (Some(normals), NonFinite::Skip) => {
                 let mut picked = pick(normals, "the target's kept normals")?;
@@ -282,7 +293,12 @@ impl PreparedTarget {
         };
         // The copies in the caller's order are not needed once sorted: freed before the tree.
         drop((kept_points, kept_normals, normalised));
-        let index = NearestNeighbours::new(&sorted)?;
+        // Distinct as given; a change of units (rounded) may make some coincide again.
+        let index = if units.is_identity() {
+            NearestNeighbours::of_distinct(&sorted)?
+        } else {
+            NearestNeighbours::new(&sorted)?
+        };
         let index_seconds = started.elapsed().as_secs_f64();
         Ok(PreparedTarget {
             points: sorted,
@@ -310,7 +326,8 @@ impl PreparedTarget {
         self.given_count == 0
     }
 
-    /// Points indexed (the finite ones when non-finite points were skipped).
+    /// Points indexed: the distinct locations among the kept points (the finite ones when
+    /// non-finite points were skipped); a location the caller gave several times is one point.
     pub fn indexed_len(&self) -> usize {
         self.points.len()
     }

@@ -42,6 +42,49 @@ static void check_quality(const sie_summary *s, int correspondences, const char 
     }
 }
 
+/* The pose's covariance and information (row-major 6x6, rotation first): symmetric, positive
+ * variances, inverse to each other on these well-constrained scenes; either may be read alone,
+ * not neither, and two overlapping buffers are refused. */
+static void check_pose_uncertainty(sie_context *ctx, const char *label) {
+    double covariance[36], information[36], alone[36], shared[40];
+    double asymmetry = 0.0, scale = 0.0, off_identity = 0.0;
+    size_t r, c, k;
+    EXPECT(ctx, sie_context_get_pose_uncertainty(ctx, covariance, information), SIE_STATUS_OK);
+    for (r = 0; r < 6; r++) {
+        CHECK(covariance[6 * r + r] > 0.0 && information[6 * r + r] > 0.0);
+        for (c = 0; c < 6; c++) {
+            double product = 0.0;
+            CHECK(isfinite(covariance[6 * r + c]) && isfinite(information[6 * r + c]));
+            scale = fmax(scale, fabs(covariance[6 * r + c]));
+            asymmetry = fmax(asymmetry, fabs(covariance[6 * r + c] - covariance[6 * c + r]));
+            for (k = 0; k < 6; k++) {
+                product += covariance[6 * r + k] * information[6 * k + c];
+            }
+            off_identity = fmax(off_identity, fabs(product - (r == c ? 1.0 : 0.0)));
+        }
+    }
+    printf("%s: pose standard deviations %.2e %.2e %.2e rad, %.2e %.2e %.2e; |cov * info - I| %.1e\n", label,
+           sqrt(covariance[0]), sqrt(covariance[7]), sqrt(covariance[14]), sqrt(covariance[21]), sqrt(covariance[28]),
+           sqrt(covariance[35]), off_identity);
+    CHECK(asymmetry <= 1e-12 * scale);
+    CHECK(off_identity < 1e-6);
+    /* Hundreds of points with mm noise fix the pose to well under 1e-2 (rad or m). */
+    CHECK(covariance[0] < 1e-4 && covariance[35] < 1e-4 && information[0] > 1e4);
+    for (k = 0; k < 36; k++) {
+        alone[k] = SENTINEL;
+    }
+    EXPECT(ctx, sie_context_get_pose_uncertainty(ctx, NULL, alone), SIE_STATUS_OK);
+    CHECK(memcmp(alone, information, sizeof alone) == 0);
+    EXPECT(ctx, sie_context_get_pose_uncertainty(ctx, NULL, NULL), SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "out_covariance and out_information"));
+    for (k = 0; k < 40; k++) {
+        shared[k] = SENTINEL;
+    }
+    EXPECT(ctx, sie_context_get_pose_uncertainty(ctx, shared, shared + 4), SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "overlap"));
+    CHECK(all_equal(shared, 40, SENTINEL));
+}
+
 /* The registration result must match `truth`; checks every getter on it. */
 static void check_pair_result(sie_context *ctx, const double T[16], const char *label) {
     sie_summary summary;
@@ -112,6 +155,7 @@ static void check_pair_result(sie_context *ctx, const double T[16], const char *
         identity_matches &= correspondences[i] == (int64_t)i;
     }
     CHECK(identity_matches);
+    check_pose_uncertainty(ctx, label);
 
     /* Histogram 0: learn the bin count, then fetch every array. */
     EXPECT(ctx, sie_context_get_histogram(ctx, 0, &model, NULL, NULL, NULL, NULL, 0), SIE_STATUS_OK);
@@ -203,6 +247,7 @@ static void check_cloud_result(sie_context *ctx, sie_status status, const double
     CHECK(summary.correspondence_count > CLOUD / 2 && summary.correspondence_count <= CLOUD);
     CHECK(summary.inlier_fraction > 0.5);
     check_quality(&summary, 0, label);
+    check_pose_uncertainty(ctx, label);
     CHECK(summary.starts_run == expected_starts);
     if (summary.histogram_count > 0) {
         /* SIE on a clean room corner: a pose every direction of which the three planes fix. */

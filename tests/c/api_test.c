@@ -274,7 +274,13 @@ static void test_null_context(void) {
     sie_summary summary;
     sie_model model;
     sie_trace_entry trace[1];
+    double covariance[36];
     sie_context *none = NULL;
+    size_t i;
+
+    for (i = 0; i < 36; i++) {
+        covariance[i] = SENTINEL;
+    }
 
     sie_context_free(NULL);
     CHECK(sie_context_last_error(NULL) != NULL);
@@ -309,6 +315,8 @@ static void test_null_context(void) {
     EXPECT(none, sie_context_get_correspondences(NULL, indices, 4, &len), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_get_histogram(NULL, 0, &model, NULL, NULL, NULL, NULL, 0), SIE_STATUS_NULL_ARGUMENT);
     EXPECT(none, sie_context_get_trace(NULL, trace, 1, &len), SIE_STATUS_NULL_ARGUMENT);
+    EXPECT(none, sie_context_get_pose_uncertainty(NULL, covariance, NULL), SIE_STATUS_NULL_ARGUMENT);
+    CHECK(all_equal(covariance, 36, SENTINEL));
     EXPECT(none, sie_estimate_inliers(NULL, dxyz, 1, 3, NULL, 0.0, values, NULL, 0, NULL), SIE_STATUS_NULL_ARGUMENT);
 }
 
@@ -378,7 +386,8 @@ void test_no_result(sie_context *ctx) {
     sie_trace_entry trace[2];
     double values[4] = {SENTINEL, SENTINEL, SENTINEL, SENTINEL};
     int64_t indices[4] = {-7, -7, -7, -7};
-    size_t len = 12345;
+    double uncertainty[36];
+    size_t len = 12345, i;
 
     EXPECT(ctx, sie_context_get_summary(ctx, &summary), SIE_STATUS_NO_RESULT);
     EXPECT(ctx, sie_context_get_inlier_probabilities(ctx, values, 4, &len), SIE_STATUS_NO_RESULT);
@@ -387,6 +396,11 @@ void test_no_result(sie_context *ctx) {
     EXPECT(ctx, sie_context_get_histogram(ctx, 0, &model, values, NULL, NULL, NULL, 4), SIE_STATUS_NO_RESULT);
     EXPECT(ctx, sie_context_get_trace(ctx, trace, 2, &len), SIE_STATUS_NO_RESULT);
     CHECK(all_equal(values, 4, SENTINEL));
+    for (i = 0; i < 36; i++) {
+        uncertainty[i] = SENTINEL;
+    }
+    EXPECT(ctx, sie_context_get_pose_uncertainty(ctx, uncertainty, NULL), SIE_STATUS_NO_RESULT);
+    CHECK(all_equal(uncertainty, 36, SENTINEL));
     CHECK(indices[0] == -7 && indices[3] == -7);
     CHECK(len == 12345);
     CHECK(error_contains(ctx, "no result"));

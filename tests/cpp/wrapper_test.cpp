@@ -9,6 +9,7 @@
 
 #include "scene.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdint>
@@ -17,6 +18,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -94,12 +96,41 @@ bool close_to(const sie::Transform &estimate, const scene::Matrix &truth, double
     return error.rotation_degrees < degrees && error.translation < distance;
 }
 
+// The pose's covariance and information on a well-constrained scene: row-major 6x6,
+// symmetric, positive variances, and inverse to each other.
+void check_pose_uncertainty(const sie::PoseUncertainty &u, int line) {
+    static_assert(std::tuple_size<decltype(u.covariance)>::value == 36, "6 x 6");
+    static_assert(std::tuple_size<decltype(u.information)>::value == 36, "6 x 6");
+    double scale = 0.0, asymmetry = 0.0, off_identity = 0.0;
+    bool positive = true;
+    for (std::size_t r = 0; r < 6; ++r) {
+        positive = positive && u.covariance[6 * r + r] > 0.0 && u.information[6 * r + r] > 0.0;
+        for (std::size_t c = 0; c < 6; ++c) {
+            scale = std::max(scale, std::abs(u.covariance[6 * r + c]));
+            asymmetry = std::max(asymmetry, std::abs(u.covariance[6 * r + c] - u.covariance[6 * c + r]));
+            double product = 0.0;
+            for (std::size_t k = 0; k < 6; ++k) {
+                product += u.covariance[6 * r + k] * u.information[6 * k + c];
+            }
+            off_identity = std::max(off_identity, std::abs(product - (r == c ? 1.0 : 0.0)));
+        }
+    }
+    check(positive, "positive variances and information diagonal", line);
+    // Thousands of points with mm-to-cm noise fix the pose to well under 1e-2 (rad or m): the
+    // covariance is the small one of the two.
+    check(u.covariance[0] < 1e-4 && u.covariance[35] < 1e-4 && u.information[0] > 1e4, "covariance, not information",
+          line);
+    check(std::isfinite(scale) && asymmetry <= 1e-12 * scale, "symmetric covariance", line);
+    check(off_identity < 1e-9, "covariance * information = I", line);
+}
+
 void test_version_and_handle() {
     CHECK(sie_version_number() == SIE_VERSION_NUMBER);
     CHECK(std::strcmp(sie_version_string(), SIE_VERSION_STRING) == 0);
     sie::Context context;
     CHECK(context.c_api() != nullptr);
     EXPECT_ERROR(sie::Status::NoResult, context.summary());
+    EXPECT_ERROR(sie::Status::NoResult, context.pose_uncertainty());
 
     // release() hands the handle over; the C API frees it.
     sie_context *raw = context.release();
@@ -150,6 +181,7 @@ void test_cloud_registration(const Clouds &clouds) {
     CHECK(summary.conditioning > 1e-3 && summary.conditioning <= 1.0);
     CHECK(summary.sigma_to_spacing > 0.0 && summary.sigma_to_spacing <= 1.0);
     CHECK(summary.margin == 0.0 ? summary.runner_up_significance == 0.0 : summary.margin >= 2.0);
+    check_pose_uncertainty(context.pose_uncertainty(), __LINE__);
 
     const std::vector<double> probabilities = context.inlier_probabilities();
     CHECK(probabilities.size() == clouds.source.size());
@@ -210,6 +242,7 @@ void test_cloud_registration(const Clouds &clouds) {
     CHECK(contains(detail, "[5]"));
     // A failed call drops the stored result.
     EXPECT_ERROR(sie::Status::NoResult, context.summary());
+    EXPECT_ERROR(sie::Status::NoResult, context.pose_uncertainty());
 }
 
 void test_input_errors(const Clouds &clouds) {
@@ -260,6 +293,7 @@ void test_correspondences() {
     CHECK(summary.verdict == sie::Verdict::Good);
     CHECK(summary.hypotheses > 0 && summary.sigma_to_spacing == 0.0 && summary.significance > 0.0);
     CHECK(summary.start == sie::StartKind::InitialGuess || summary.start == sie::StartKind::Hypothesis);
+    check_pose_uncertainty(context.pose_uncertainty(), __LINE__);
 
     std::vector<std::array<float, 3>> source_f, target_f;
     for (std::size_t i = 0; i < source.size(); ++i) {

@@ -4,6 +4,7 @@
     result = sie.align(source, target)         # N x 3 arrays or open3d PointClouds -> sie.Registration
     result.transform                           # 4 x 4, T_target_source: p_target = T @ p_source
     result.summary.verdict                     # Verdict.GOOD: use it; DOUBTFUL: check; UNSUPPORTED: reject
+    result.covariance, result.information      # 6 x 6, rotation first (see sie.Registration)
     with sie.Context(max_iterations=100) as ctx:   # settings, callbacks, trace, histograms
         result = ctx.align(source, target)
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import ctypes
-from typing import Any, Callable, List, Optional, Union
+from typing import Any, Callable, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -411,6 +411,7 @@ class Context:
             transform, self._summary(handle),
             self._array(handle, _lib.sie_context_get_inlier_probabilities, np.float64, ctypes.c_double),
             self._array(handle, _lib.sie_context_get_correspondences, np.int64, ctypes.c_int64),
+            *self._pose_uncertainty(handle),
         )
 
     # ---- results of the last successful registration -----------------------------------
@@ -438,6 +439,20 @@ class Context:
         self._check(handle, getter(handle, values.ctypes.data_as(ctypes.POINTER(ctype)), values.size,
                                    ctypes.byref(length)))
         return values[: length.value]
+
+    def pose_uncertainty(self) -> Tuple[np.ndarray, np.ndarray]:
+        """(covariance, information) of the last result's pose, each 6 x 6 float64: rotation
+        vector first, then translation, left perturbation in the target frame (see
+        Registration)."""
+        with self._h.use() as handle:
+            return self._pose_uncertainty(handle)
+
+    def _pose_uncertainty(self, handle: ctypes.c_void_p) -> Tuple[np.ndarray, np.ndarray]:
+        covariance = np.empty((6, 6), dtype=np.float64)  # C order: row-major, as the C API writes
+        information = np.empty((6, 6), dtype=np.float64)
+        self._check(handle, _lib.sie_context_get_pose_uncertainty(handle, _double_pointer(covariance),
+                                                                  _double_pointer(information)))
+        return covariance, information
 
     def inlier_probabilities(self) -> np.ndarray:
         with self._h.use() as handle:

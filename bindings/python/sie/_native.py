@@ -180,6 +180,7 @@ _SIGNATURES = {
         status_t,
         [_ctx, ctypes.POINTER(sie_trace_entry), ctypes.c_size_t, c_size_t_p],
     ),
+    "sie_context_get_pose_uncertainty": (status_t, [_ctx, c_double_p, c_double_p]),
     "sie_estimate_inliers": (
         status_t,
         [_ctx, c_double_p, ctypes.c_size_t, ctypes.c_size_t, c_double_p, ctypes.c_double, c_double_p,

@@ -62,12 +62,24 @@ class Summary:
 
 @dataclass(frozen=True)
 class Registration:
-    """What Context.align* returns."""
+    """What Context.align* returns.
+
+    covariance and information (6 x 6 float64, information the inverse of covariance where the
+    data constrain the pose) describe the uncertainty of transform: it is perturbed on the
+    left, T = expm(hat(d)) @ transform, with d = (w, v), the rotation vector w in radians
+    FIRST (rows and columns 0-2), then the translation v (3-5), both in the target frame and
+    in the input's units. Directions the inliers leave free (sliding along a plane) get a far
+    larger variance and a far smaller information than the constrained ones (with estimated
+    normals only by about (point spacing / noise)**2). Both are zeros when the result had too
+    few weighted residuals to measure a variance.
+    """
 
     transform: np.ndarray  # 4 x 4 float64, T_target_source
     summary: Summary
     inlier_probabilities: np.ndarray  # per source point (0 for unmatched)
     correspondences: np.ndarray  # matched target index per source point (-1 if unmatched)
+    covariance: np.ndarray  # 6 x 6 Cov(d), d = (rotation vector, translation), target frame
+    information: np.ndarray  # 6 x 6, inverse of covariance where the pose is constrained
 
 
 @dataclass(frozen=True)

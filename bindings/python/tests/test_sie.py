@@ -248,6 +248,61 @@ def test_cloud_registration_float32(clouds):
     assert s.margin >= 2 if s.runner_up_significance > 0 else s.margin == 0
 
 
+def check_pose_uncertainty(result):
+    """6 x 6 float64, symmetric, positive definite, covariance @ information = I (a
+    well-constrained scene)."""
+    covariance, information = result.covariance, result.information
+    for matrix in (covariance, information):
+        assert matrix.shape == (6, 6) and matrix.dtype == np.float64
+        assert np.all(np.isfinite(matrix))
+        assert np.abs(matrix - matrix.T).max() <= 1e-12 * np.abs(matrix).max()
+        assert np.all(np.linalg.eigvalsh(matrix) > 0)
+    np.testing.assert_allclose(covariance @ information, np.eye(6), rtol=0, atol=1e-9)
+
+
+def test_pose_covariance_and_information(clouds):
+    source, target, _ = clouds
+    with sie.Context() as ctx:
+        with pytest.raises(sie.SieError) as error:
+            ctx.pose_uncertainty()
+        assert error.value.status is sie.Status.NO_RESULT
+        result = ctx.align(source, target)
+        check_pose_uncertainty(result)
+        covariance, information = ctx.pose_uncertainty()
+        np.testing.assert_array_equal(covariance, result.covariance)
+        np.testing.assert_array_equal(information, result.information)
+        # The same clouds in millimetres: rotation (rad^2) unchanged, translation x 1e6.
+        in_mm = ctx.align(source.astype(np.float64) * 1000.0, target.astype(np.float64) * 1000.0)
+    in_m = sie.align(source.astype(np.float64), target.astype(np.float64))
+    scale = np.array([1.0, 1.0, 1.0, 1000.0, 1000.0, 1000.0])
+    for block in (slice(0, 3), slice(3, 6)):
+        expected = (in_m.covariance * np.outer(scale, scale))[block, block]
+        np.testing.assert_allclose(in_mm.covariance[block, block], expected, rtol=0,
+                                   atol=1e-6 * np.abs(expected).max())
+
+
+def skew(p):
+    return np.array([[0, -p[2], p[1]], [p[2], 0, -p[0]], [-p[1], p[0], 0]])
+
+
+def test_pose_covariance_follows_the_documented_convention():
+    """Correspondences far from the source frame's origin: the covariance is the inliers'
+    least-squares one, sigma^2 (sum J^T J)^-1 with J = [-[T p]x, I] for the left perturbation
+    T = Exp(d) T_hat, d = (rotation vector, translation) in the target frame (to 0.07 of its
+    largest entry here, at most 0.22 over seeds 7-16: the sandwich estimate's own scatter).
+    Read as the right perturbation in the source frame it is 15-20x off, with the translation
+    first 0.99-1.16x off."""
+    t0 = rigid(0.8, [1, 2, 3], [2.0, -1.0, 3.0])
+    source, target = paper_simulation(500, 200, 0.01, t0, np.random.default_rng(7))
+    result = sie.Context().align_correspondences(source, target)
+    check_pose_uncertainty(result)
+    moved = transform(result.transform, source[:500])
+    jacobians = [np.hstack([-skew(p), np.eye(3)]) for p in moved]
+    expected = 0.01**2 * np.linalg.inv(sum(J.T @ J for J in jacobians))
+    difference = np.abs(result.covariance - expected).max() / np.abs(expected).max()
+    assert difference < 0.4, (difference, result.covariance, expected)
+
+
 def test_padded_float32_and_float64_agree(clouds):
     source, target, _ = clouds
     ctx = sie.Context()
@@ -661,6 +716,8 @@ def test_type_hints_serve_a_strict_mypy_user(tmp_path):
         "    if verdict is not sie.Verdict.GOOD:\n"
         "        print(result.summary.significance, result.summary.margin)\n"
         "    print(reason, result.summary.sigma[0] + 1.0)\n"
+        "    covariance: np.ndarray = result.covariance @ result.information\n"
+        "    print(covariance.shape)\n"
         "    return result.transform\n"
     )
     cache = ["--cache-dir", str(tmp_path / "mypy-cache")]  # numpy's stubs analysed once

@@ -266,3 +266,134 @@ fn histograms_are_copied_per_bin() {
     let expected = 10.0 * (-0.5f64 * 0.25).exp();
     assert!((model_values[0] - expected).abs() < 1e-12, "{}", model_values[0]);
 }
+
+/// A result whose matrices tell rows from columns: covariance (r, c) = 10·r + c, information
+/// the negative.
+fn result_with_uncertainty() -> RegistrationResult {
+    let covariance = nalgebra::Matrix6::from_fn(|r, c| (10 * r + c) as f64);
+    RegistrationResult {
+        uncertainty: crate::PoseUncertainty {
+            covariance,
+            information: -covariance,
+        },
+        ..sample_result()
+    }
+}
+
+#[test]
+fn pose_uncertainty_is_copied_row_major_and_either_matrix_may_be_skipped() {
+    let ctx = Context::new();
+    ctx.inject_result(result_with_uncertainty());
+    let expected: [f64; 36] = core::array::from_fn(|i| (10 * (i / 6) + i % 6) as f64);
+    let mut covariance = [-1.0; 36];
+    let mut information = [-1.0; 36];
+    unsafe {
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, covariance.as_mut_ptr(), information.as_mut_ptr()),
+            sie_status::Ok
+        );
+    }
+    assert_eq!(covariance, expected);
+    assert_eq!(information, expected.map(|v| -v));
+
+    let mut only_information = [-1.0; 36];
+    let mut only_covariance = [-1.0; 36];
+    unsafe {
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, null_mut(), only_information.as_mut_ptr()),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, only_covariance.as_mut_ptr(), null_mut()),
+            sie_status::Ok
+        );
+    }
+    assert_eq!((only_covariance, only_information), (covariance, information));
+}
+
+/// Every refusal names what is wrong and writes into neither buffer.
+#[test]
+fn pose_uncertainty_refusals_write_nothing() {
+    let ctx = Context::new();
+    let mut covariance = [-1.0; 36];
+    let mut information = [-1.0; 36];
+    let untouched = |covariance: &[f64; 36], information: &[f64; 36]| {
+        assert_eq!((*covariance, *information), ([-1.0; 36], [-1.0; 36]));
+    };
+    unsafe {
+        assert_eq!(
+            sie_context_get_pose_uncertainty(
+                core::ptr::null(),
+                covariance.as_mut_ptr(),
+                information.as_mut_ptr()
+            ),
+            sie_status::NullArgument
+        );
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, covariance.as_mut_ptr(), information.as_mut_ptr()),
+            sie_status::NoResult
+        );
+        assert!(ctx.last_error().starts_with("no result"), "{}", ctx.last_error());
+        untouched(&covariance, &information);
+
+        ctx.inject_result(result_with_uncertainty());
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, null_mut(), null_mut()),
+            sie_status::NullArgument
+        );
+        assert_eq!(
+            ctx.last_error(),
+            "out_covariance and out_information are both NULL: pass at least one"
+        );
+        // A misaligned buffer is refused before the other, valid one is written.
+        let misaligned = information
+            .as_mut_ptr()
+            .cast::<u8>()
+            .wrapping_add(1)
+            .cast::<f64>();
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, covariance.as_mut_ptr(), misaligned),
+            sie_status::InvalidArgument
+        );
+        assert!(
+            ctx.last_error().starts_with("out_information ("),
+            "{}",
+            ctx.last_error()
+        );
+        let misaligned = covariance.as_mut_ptr().cast::<u8>().wrapping_add(4).cast::<f64>();
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, misaligned, information.as_mut_ptr()),
+            sie_status::InvalidArgument
+        );
+        assert!(
+            ctx.last_error().starts_with("out_covariance ("),
+            "{}",
+            ctx.last_error()
+        );
+        untouched(&covariance, &information);
+
+        // One buffer for both, or two that share a double, would leave one matrix half
+        // overwritten by the other.
+        let mut shared = [-1.0; 72];
+        for offset in [0, 35] {
+            assert_eq!(
+                sie_context_get_pose_uncertainty(ctx.0, shared.as_mut_ptr(), shared.as_mut_ptr().add(offset)),
+                sie_status::InvalidArgument
+            );
+            assert!(ctx.last_error().contains("overlap"), "{}", ctx.last_error());
+            assert_eq!(
+                sie_context_get_pose_uncertainty(ctx.0, shared.as_mut_ptr().add(offset), shared.as_mut_ptr()),
+                sie_status::InvalidArgument
+            );
+        }
+        assert_eq!(shared, [-1.0; 72]);
+        // Adjacent is fine.
+        assert_eq!(
+            sie_context_get_pose_uncertainty(ctx.0, shared.as_mut_ptr(), shared.as_mut_ptr().add(36)),
+            sie_status::Ok
+        );
+        assert_eq!(shared[35], 55.0);
+        assert_eq!(shared[36], 0.0);
+        assert_eq!(shared[71], -55.0);
+    }
+}

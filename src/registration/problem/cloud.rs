@@ -361,15 +361,8 @@ impl<'a> CloudProblem<'a> {
         let (last_move, typical_margin) = (moves.last(), self.typical_margin);
         self.workers
             .for_each_chunk_of(MATCH_CHUNK, &mut pass.matches, |start, chunk| {
-                let mut previous: Option<(&Point, Match)> = None;
                 for (k, slot) in chunk.iter_mut().enumerate() {
                     let a = &points[start + k];
-                    // A copy of the previous point (depth frames: a third of them at 0 0 0, next
-                    // to each other in curve order) has the same history, so the same match.
-                    if let Some((_, matched)) = previous.filter(|(p, _)| *p == a) {
-                        *slot = matched;
-                        continue;
-                    }
                     let unchanged = slot.queried_at != NEVER_QUERIED
                         && 2.0 * length(&transform_point(&moves[slot.queried_at as usize], a))
                             < slot.margin.get();
@@ -392,7 +385,6 @@ impl<'a> CloudProblem<'a> {
                             slot.margin = Margin::at_most((second - first) * (1.0 - 1e-6));
                         }
                     }
-                    previous = Some((a, *slot));
                 }
             });
     }
