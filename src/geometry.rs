@@ -419,19 +419,68 @@ pub(crate) fn plane_conditioning_by(
     moved: impl Fn(usize) -> Point,
     normal: impl Fn(usize) -> Point,
     weights: &[f64],
-) -> f64 {
+) -> PlaneConditioning {
+    let free = PlaneConditioning {
+        ratio: 0.0,
+        loosest: None,
+    };
     let weights = &weights[..count.min(weights.len())];
     let total: f64 = weights.iter().sum();
     if !(total.is_finite() && total > 0.0) {
-        return 0.0;
+        return free;
     }
     let system = PlaneSystem::new(total, &moved, |i| (moved(i), normal(i)), weights);
     let eigen = SymmetricEigen::new(system.hessian);
     let (smallest, largest) = (eigen.eigenvalues.min(), eigen.eigenvalues.max());
     if !(largest.is_finite() && largest > 0.0 && smallest.is_finite()) {
-        return 0.0;
+        return free;
     }
-    (smallest / largest).clamp(0.0, 1.0)
+    let weakest = eigen.eigenvalues.imin();
+    let direction = eigen.eigenvectors.column(weakest);
+    PlaneConditioning {
+        ratio: (smallest / largest).clamp(0.0, 1.0),
+        loosest: Some(LooseDirection::of(&Vector6::from_iterator(
+            direction.iter().copied(),
+        ))),
+    }
+}
+
+/// [`plane_conditioning_by`]'s answer: the conditioning, and the pose's direction of least
+/// constraint (`None` where nothing is constrained at all).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct PlaneConditioning {
+    pub(crate) ratio: f64,
+    pub(crate) loosest: Option<LooseDirection>,
+}
+
+/// The direction in which the inliers constrain a pose least: a translation along a unit
+/// axis, or a rotation about a unit axis through the inliers' centroid, whichever part of the
+/// weakest eigenvector (rotation scaled by the inliers' spread) is the larger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LooseDirection {
+    /// Translation along this unit vector (target frame).
+    Translation([f64; 3]),
+    /// Rotation about this unit axis (target frame) through the inliers' centroid.
+    Rotation([f64; 3]),
+}
+
+impl LooseDirection {
+    /// From an eigenvector of [`PlaneSystem`]'s normal matrix: (ω·s, v).
+    fn of(weakest: &Vector6<f64>) -> Self {
+        let rotation = Vector3::new(weakest[0], weakest[1], weakest[2]);
+        let translation = Vector3::new(weakest[3], weakest[4], weakest[5]);
+        // The sign of an eigenvector is arbitrary: the largest component is made positive.
+        let unit = |v: Vector3<f64>| {
+            let v = v.normalize();
+            let sign = if v[v.iamax()] < 0.0 { -1.0 } else { 1.0 };
+            [sign * v.x, sign * v.y, sign * v.z]
+        };
+        if translation.norm() >= rotation.norm() {
+            LooseDirection::Translation(unit(translation))
+        } else {
+            LooseDirection::Rotation(unit(rotation))
+        }
+    }
 }
 
 /// The normal equations of weighted point-to-plane rows Σ w_i (n_iᵀ(p_i − q_i))², linearised

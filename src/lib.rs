@@ -68,6 +68,7 @@ pub mod synthetic;
 
 pub use cost::CostFunction;
 pub use error::Error;
+pub use geometry::LooseDirection;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use point::{NonFinite, Point};
 pub use registration::{

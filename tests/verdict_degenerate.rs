@@ -12,7 +12,10 @@ use nalgebra::{Matrix4, Rotation3, Translation3};
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use sie::geometry::transform_point;
-use sie::{Hooks, Metric, Point, RegistrationConfig, RegistrationResult, Starts, Verdict, register_clouds};
+use sie::{
+    Hooks, LooseDirection, Metric, Point, RegistrationConfig, RegistrationResult, Starts, Verdict,
+    register_clouds,
+};
 
 /// Sensor noise added to every coordinate of both clouds.
 const NOISE: f64 = 0.005;
@@ -141,6 +144,20 @@ fn a_corridor_seen_over_part_of_its_length_is_never_good() {
     let truth = Translation3::new(0.7, 0.0, 0.0).to_homogeneous();
     let source = seen_from(&truth, &corridor(&mut rng, 7.0, 13.0, 1_000.0));
     assert_never_good("corridor", &source, &target, &truth);
+    // The verdict names what is free: the translation along the corridor (x).
+    let mut named = 0;
+    for (how, result) in register_every_way(&source, &target) {
+        if result.quality.conditioning < 1e-3 {
+            named += 1;
+            match result.quality.loose_direction {
+                Some(LooseDirection::Translation(axis)) => {
+                    assert!(axis[0].abs() > 0.99, "corridor, {how}: loose along {axis:?}")
+                }
+                other => panic!("corridor, {how}: loose direction {other:?}"),
+            }
+        }
+    }
+    assert!(named > 0, "no run found the corridor loose");
 }
 
 /// A 1 m × 1 m patch of a 4 m × 4 m plane, moved 0.4 m within the plane: it fits anywhere on it.

@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 use nalgebra::{Matrix4, Matrix6};
 use serde::Serialize;
 use sie::geometry::{rotation_angle, rotation_part, translation_part};
-use sie::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
+use sie::{LooseDirection, RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
 
 pub use super::numbers::significant;
 
@@ -163,7 +163,51 @@ pub struct QualityReport {
     pub sigma_to_spacing: Option<f64>,
     /// significance / search.runner_up_significance (null when no start ended elsewhere).
     pub margin: Option<f64>,
+    /// The direction the inliers' surfaces constrain least, when their measure set
+    /// `conditioning` (null otherwise).
+    pub loose_direction: Option<LooseDirectionRow>,
 }
+
+/// `Quality::loose_direction`: "translation" along `axis`, or "rotation" about `axis` through
+/// the inliers' centroid (a unit vector in the target frame).
+#[derive(Serialize)]
+pub struct LooseDirectionRow {
+    pub kind: &'static str,
+    pub axis: [f64; 3],
+}
+
+impl LooseDirectionRow {
+    fn of(direction: LooseDirection) -> Self {
+        match direction {
+            LooseDirection::Translation(axis) => LooseDirectionRow {
+                kind: "translation",
+                axis,
+            },
+            LooseDirection::Rotation(axis) => LooseDirectionRow {
+                kind: "rotation",
+                axis,
+            },
+        }
+    }
+
+    /// "translation along x", "rotation about (0.71, 0.71, 0.00)".
+    fn describe(&self) -> String {
+        let axis = match self.axis.iter().position(|c| c.abs() > AXIS_NAMED) {
+            Some(k) => {
+                let sign = if self.axis[k] < 0.0 { "-" } else { "" };
+                format!("{sign}{}", ["x", "y", "z"][k])
+            }
+            None => format!("({:.2}, {:.2}, {:.2})", self.axis[0], self.axis[1], self.axis[2]),
+        };
+        match self.kind {
+            "translation" => format!("translation along {axis}"),
+            _ => format!("rotation about {axis}"),
+        }
+    }
+}
+
+/// A unit axis within about 2.6° of a coordinate axis is named by it.
+const AXIS_NAMED: f64 = 0.999;
 
 /// The search over starts (`RegistrationResult::search`).
 #[derive(Serialize)]
@@ -188,6 +232,7 @@ pub fn quality_report(result: &RegistrationResult) -> QualityReport {
             .is_finite()
             .then_some(quality.sigma_to_spacing),
         margin: quality.margin.is_finite().then_some(quality.margin),
+        loose_direction: quality.loose_direction.map(LooseDirectionRow::of),
     }
 }
 
@@ -252,9 +297,17 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
             {
                 weak.push("no inlier peak in the residual histogram".to_string());
             }
+            if result.stop_reason == StopReason::IterationLimit {
+                weak.push("stopped at the iteration limit before converging".to_string());
+            }
             if q.conditioning < 1e-3 {
+                let loose = q
+                    .loose_direction
+                    .map_or("some direction of the pose".to_string(), |d| {
+                        LooseDirectionRow::of(d).describe()
+                    });
                 weak.push(format!(
-                    "conditioning {} (the inliers leave the pose loose in some direction)",
+                    "conditioning {} (the inliers leave {loose} loose)",
                     significant(q.conditioning)
                 ));
             }

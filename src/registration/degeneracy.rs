@@ -14,7 +14,7 @@
 //! normals come from up to [`SURFACE_NEIGHBOURS`] neighbours, where noise tilts them a fifth as much
 //! (a 25th of the false constraint), and are estimated for a few thousand targets only.
 
-use crate::geometry::plane_conditioning_by;
+use crate::geometry::{PlaneConditioning, plane_conditioning_by};
 use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::target::PreparedTarget;
@@ -80,7 +80,11 @@ pub(crate) struct SurfacePair {
 /// normals estimated at their targets now (given normals are per point, as noisy as
 /// point-to-plane's own). Pairs whose target has no normal (no plane in its neighbourhood),
 /// or whose point, normal or weight is not finite, are left out; fewer than 6 left give 0.
-pub(crate) fn surface_conditioning(pairs: &[SurfacePair], target: &PreparedTarget, workers: &Workers) -> f64 {
+pub(crate) fn surface_conditioning(
+    pairs: &[SurfacePair],
+    target: &PreparedTarget,
+    workers: &Workers,
+) -> PlaneConditioning {
     let targets: Vec<u32> = pairs.iter().map(|pair| pair.target).collect();
     let neighbours = surface_neighbours(target.indexed_len(), target.normal_neighbours());
     let normals = target.surface_normals(&targets, neighbours, workers);
@@ -97,7 +101,10 @@ pub(crate) fn surface_conditioning(pairs: &[SurfacePair], target: &PreparedTarge
         .collect();
     // Six unknowns: fewer rows cannot fix them all.
     if with_normal.len() < 6 {
-        return 0.0;
+        return PlaneConditioning {
+            ratio: 0.0,
+            loosest: None,
+        };
     }
     let weights: Vec<f64> = with_normal.iter().map(|row| row.2).collect();
     plane_conditioning_by(
@@ -111,6 +118,7 @@ pub(crate) fn surface_conditioning(pairs: &[SurfacePair], target: &PreparedTarge
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::LooseDirection;
     use crate::registration::target::PrepareOptions;
 
     /// Points on the faces given by their normals: axis-aligned faces 1.5 from the origin
@@ -135,6 +143,10 @@ mod tests {
     }
 
     fn conditioning_of(points: &[Point], weight: f64) -> f64 {
+        conditioning_and_direction_of(points, weight).ratio
+    }
+
+    fn conditioning_and_direction_of(points: &[Point], weight: f64) -> PlaneConditioning {
         let target = PreparedTarget::new(points, None, &PrepareOptions::default()).unwrap();
         let workers = Workers::new(1).unwrap();
         let pairs: Vec<SurfacePair> = (0..target.points().len())
@@ -158,8 +170,26 @@ mod tests {
         let closed = [X, Y, Z, X.map(|c| -c), Y.map(|c| -c), Z.map(|c| -c)];
         assert!(conditioning_of(&faces(&closed), 1.0) > 0.05);
         let corridor = [Z, Y, Y.map(|c| -c)];
-        assert!(conditioning_of(&faces(&corridor), 1.0) < 1e-6);
+        let sliding = conditioning_and_direction_of(&faces(&corridor), 1.0);
+        assert!(sliding.ratio < 1e-6);
+        // Floor and walls normal to z and y: the corridor runs along x.
+        match sliding.loosest {
+            Some(LooseDirection::Translation(axis)) => assert!(axis[0] > 0.999, "{axis:?}"),
+            other => panic!("corridor: {other:?}"),
+        }
         assert!(conditioning_of(&faces(&[Z]), 1.0) < 1e-6);
+    }
+
+    /// Four walls around z, no floor or ceiling: the translation along z is free.
+    #[test]
+    fn walls_alone_leave_the_vertical_free() {
+        let walls = [X, Y, X.map(|c| -c), Y.map(|c| -c)];
+        let loose = conditioning_and_direction_of(&faces(&walls), 1.0);
+        assert!(loose.ratio < 1e-6);
+        match loose.loosest {
+            Some(LooseDirection::Translation(axis)) => assert!(axis[2] > 0.999, "{axis:?}"),
+            other => panic!("walls: {other:?}"),
+        }
     }
 
     /// Zero or NaN weights, too few pairs, NaN points or targets without a normal give 0 or
@@ -179,18 +209,18 @@ mod tests {
         let five: Vec<SurfacePair> = (0..5)
             .map(|t| pair(t * 1600, target.points()[t * 1600]))
             .collect();
-        assert_eq!(surface_conditioning(&five, &target, &workers), 0.0);
-        assert_eq!(surface_conditioning(&[], &target, &workers), 0.0);
+        assert_eq!(surface_conditioning(&five, &target, &workers).ratio, 0.0);
+        assert_eq!(surface_conditioning(&[], &target, &workers).ratio, 0.0);
         let mut all: Vec<SurfacePair> = (0..closed.len()).map(|t| pair(t, target.points()[t])).collect();
-        let clean = surface_conditioning(&all, &target, &workers);
+        let clean = surface_conditioning(&all, &target, &workers).ratio;
         all[7].moved = [f64::NAN; 3];
-        let with_nan = surface_conditioning(&all, &target, &workers);
+        let with_nan = surface_conditioning(&all, &target, &workers).ratio;
         assert!(with_nan.is_finite() && (with_nan - clean).abs() < 0.01 * clean);
         // Points on a line have no plane, hence no normal: every pair is left out.
         let line: Vec<Point> = (0..200).map(|i| [0.01 * i as f64, 0.0, 0.0]).collect();
         let target = PreparedTarget::new(&line, None, &PrepareOptions::default()).unwrap();
         let on_line: Vec<SurfacePair> = (0..line.len()).map(|t| pair(t, target.points()[t])).collect();
-        assert_eq!(surface_conditioning(&on_line, &target, &workers), 0.0);
+        assert_eq!(surface_conditioning(&on_line, &target, &workers).ratio, 0.0);
     }
 
     /// Few rows: all of positive weight, as they are. Many: about SURFACE_PAIRS draws, in

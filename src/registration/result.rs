@@ -5,6 +5,7 @@ use nalgebra::Matrix4;
 
 use super::covariance::PoseUncertainty;
 use crate::error::Error;
+use crate::geometry::LooseDirection;
 
 use crate::sie::HistogramModel;
 
@@ -178,6 +179,10 @@ pub struct Quality {
     /// Significance of the result over that of the best start that ended elsewhere (∞ when
     /// none did).
     pub margin: f64,
+    /// ICP: the direction the inliers' surfaces constrain least, when their measure set
+    /// `conditioning` (it names what a low conditioning leaves free: "translation along x");
+    /// `None` when the solve's own conditioning was the smaller, or for correspondences.
+    pub loose_direction: Option<LooseDirection>,
 }
 
 /// Where the returned transform came from.

@@ -120,6 +120,7 @@ fn sample_result() -> RegistrationResult {
             significance: 41.5,
             conditioning: 0.25,
             sigma_to_spacing: 0.75,
+            loose_direction: None,
             margin: 41.5 / 12.0,
         },
         trace: vec![TraceEntry {

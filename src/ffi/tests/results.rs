@@ -174,6 +174,7 @@ fn summary_encodes_verdicts_starts_and_unbounded_values_finitely() {
             significance: 7.0,
             conditioning: 0.5,
             sigma_to_spacing: f64::INFINITY,
+            loose_direction: None,
             margin: f64::INFINITY,
         };
         result.search = SearchReport {

@@ -315,10 +315,11 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     work.normalised = Vec::new();
     // ICP's solves miss sliding along surfaces (point-to-point sees the points' spread,
     // point-to-plane noisy per-point normals): the surfaces' own measure too, the weaker wins.
-    let conditioning = match problem.surface_conditioning(&end.transform, &work.probabilities) {
-        Some(surfaces) => end.conditioning.min(surfaces),
-        None => end.conditioning,
-    };
+    let (conditioning, loose_direction) =
+        match problem.surface_conditioning(&end.transform, &work.probabilities) {
+            Some(surfaces) if surfaces.ratio < end.conditioning => (surfaces.ratio, surfaces.loosest),
+            _ => (end.conditioning, None),
+        };
     let rows = problem.rows();
     let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
@@ -350,6 +351,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
         },
         quality: Quality {
             conditioning,
+            loose_direction,
             margin: f64::INFINITY,
             ..Quality::default()
         },

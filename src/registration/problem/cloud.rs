@@ -11,7 +11,8 @@ use super::{
     Problem, RowScales, Rows, StepPoints, noise_scale, probe_points_of, rms_displacement, typical_magnitude,
 };
 use crate::geometry::{
-    Solve, length, point_to_plane_step_by, splitmix64, transform_point, weighted_rigid_fit_by,
+    PlaneConditioning, Solve, length, point_to_plane_step_by, splitmix64, transform_point,
+    weighted_rigid_fit_by,
 };
 use crate::median::median;
 use crate::parallel::Workers;
@@ -615,7 +616,11 @@ impl Problem for CloudProblem<'_> {
 
     /// Both metrics: point-to-point's solve does not see the surfaces, point-to-plane's sees
     /// them through per-point normals whose noise reads as constraint (`degeneracy`).
-    fn surface_conditioning(&mut self, transform: &Matrix4<f64>, probabilities: &[f64]) -> Option<f64> {
+    fn surface_conditioning(
+        &mut self,
+        transform: &Matrix4<f64>,
+        probabilities: &[f64],
+    ) -> Option<PlaneConditioning> {
         let started = Instant::now();
         let pass = self.pass(self.pass_for(Purpose::Evaluate));
         let chosen = surface_rows(probabilities);

@@ -9,7 +9,7 @@ mod pairs;
 
 use nalgebra::Matrix4;
 
-use crate::geometry::{Solve, transform_point};
+use crate::geometry::{PlaneConditioning, Solve, transform_point};
 use crate::median::median;
 use crate::noise::combine;
 use crate::point::Point;
@@ -165,7 +165,11 @@ pub(crate) trait Problem {
     /// inlier `probabilities`) fix the pose, for a problem whose solve's conditioning misses
     /// sliding along them (ICP, see `registration::degeneracy`); `None` when the solve's
     /// conditioning says all there is (fixed correspondences: no surfaces).
-    fn surface_conditioning(&mut self, _transform: &Matrix4<f64>, _probabilities: &[f64]) -> Option<f64> {
+    fn surface_conditioning(
+        &mut self,
+        _transform: &Matrix4<f64>,
+        _probabilities: &[f64],
+    ) -> Option<PlaneConditioning> {
         None
     }
     /// The pose's uncertainty at `transform` from the rows of the last `evaluate_all` there,
