@@ -382,6 +382,11 @@ enum sie_start_kind
      * The initial guess with the warm start's noise model (`sie_context_set_warm_start`).
      */
     SIE_START_KIND_WARM_START = 4,
+    /**
+     * Another start's result turned half a turn about one of its inliers' principal axes (a
+     * near-symmetric scene's rival pose), then SIE (clouds).
+     */
+    SIE_START_KIND_HALF_TURN = 5,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
