@@ -3,8 +3,6 @@
 //! location is one point's evidence, and every copy gets its location's per-point results.
 mod common;
 
-use std::ptr::null;
-
 use common::c_context::Context;
 use common::icp;
 use nalgebra::Matrix4;
@@ -31,20 +29,7 @@ fn interleaved_twice(points: &[Point]) -> Vec<Point> {
 
 fn c_abi_register(ctx: &Context, source: &[Point], target: &[Point]) -> [f64; 16] {
     let mut out = [f64::NAN; 16];
-    // SAFETY: packed double arrays of the given counts; `out` holds 16 doubles.
-    let status = unsafe {
-        sie_context_register_d(
-            ctx.0,
-            source.as_ptr().cast(),
-            source.len(),
-            0,
-            target.as_ptr().cast(),
-            target.len(),
-            0,
-            null(),
-            out.as_mut_ptr(),
-        )
-    };
+    let status = ctx.register(source, target, &mut out);
     assert_eq!(status, sie_status::Ok, "{}", ctx.last_error());
     out
 }

@@ -10,24 +10,6 @@ use sie::ffi::*;
 use sie::synthetic::{paper_simulation, room_scene};
 
 impl Context {
-    /// ICP on double clouds (packed), identity start.
-    fn register(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
-        // SAFETY: packed arrays of the given counts; `out` holds 16 doubles.
-        unsafe {
-            sie_context_register_d(
-                self.0,
-                source.as_ptr().cast(),
-                source.len(),
-                0,
-                target.as_ptr().cast(),
-                target.len(),
-                0,
-                null(),
-                out.as_mut_ptr(),
-            )
-        }
-    }
-
     fn register_pairs(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
         // SAFETY: packed arrays of equal length; `out` holds 16 doubles.
         unsafe {

@@ -121,30 +121,6 @@ fn wide_per_column_matrices_keep_their_inliers() {
 }
 
 impl Context {
-    /// ICP on double clouds (packed) from `init` (row-major 4×4, or the identity).
-    fn register(
-        &self,
-        source: &[[f64; 3]],
-        target: &[[f64; 3]],
-        init: Option<&[f64; 16]>,
-        out: &mut [f64; 16],
-    ) -> sie_status {
-        // SAFETY: packed arrays of the given counts; `init` NULL or 16 doubles; `out` holds 16.
-        unsafe {
-            sie_context_register_d(
-                self.0,
-                source.as_ptr().cast(),
-                source.len(),
-                0,
-                target.as_ptr().cast(),
-                target.len(),
-                0,
-                init.map_or(null(), |t| t.as_ptr()),
-                out.as_mut_ptr(),
-            )
-        }
-    }
-
     fn set_metric(&self, metric: sie_metric) {
         // SAFETY: live context.
         assert_eq!(
@@ -173,7 +149,7 @@ fn one_target_point_far_out_changes_nothing() {
         ctx.set_metric(metric);
         let mut reference = [0.0; 16];
         assert_eq!(
-            ctx.register(&scene.source, &scene.target, None, &mut reference),
+            ctx.register_from(&scene.source, &scene.target, None, &mut reference),
             sie_status::Ok
         );
         let reference_error = difference(&reference, &scene.t_target_source);
@@ -181,7 +157,7 @@ fn one_target_point_far_out_changes_nothing() {
             let mut target = scene.target.clone();
             target.push([far, 0.5, -far / 2.0]);
             let mut out = [f64::NAN; 16];
-            let status = ctx.register(&scene.source, &target, None, &mut out);
+            let status = ctx.register_from(&scene.source, &target, None, &mut out);
             let what = format!("{metric:?}, a target point at {far:e}");
             assert_eq!(status, sie_status::Ok, "{what}: {}", ctx.last_error());
             assert!(out.iter().all(|v| v.is_finite()), "{what}: {out:?}");
@@ -206,7 +182,7 @@ fn ctx_verdict_without(scene: &sie::synthetic::RoomScene, metric: sie_metric) ->
     ctx.set_metric(metric);
     let mut out = [0.0; 16];
     assert_eq!(
-        ctx.register(&scene.source, &scene.target, None, &mut out),
+        ctx.register_from(&scene.source, &scene.target, None, &mut out),
         sie_status::Ok
     );
     ctx.summary().verdict
@@ -230,7 +206,7 @@ fn a_guess_astronomically_far_is_never_good_and_stays_finite() {
         let ctx = Context::new();
         ctx.set_metric(metric);
         let mut out = [f64::NAN; 16];
-        let status = ctx.register(&scene.source, &scene.target, Some(&guess), &mut out);
+        let status = ctx.register_from(&scene.source, &scene.target, Some(&guess), &mut out);
         assert_eq!(status, sie_status::Ok, "{metric:?}: {}", ctx.last_error());
         assert!(out.iter().all(|v| v.is_finite()), "{metric:?} {far:e}: {out:?}");
         let summary = ctx.summary();
@@ -313,7 +289,7 @@ fn a_guess_beyond_the_range_of_tiny_clouds_stays_finite() {
             let status = if prepared {
                 ctx.register_prepared(&source, &target, Some(&guess), &mut out)
             } else {
-                ctx.register(&source, &target, Some(&guess), &mut out)
+                ctx.register_from(&source, &target, Some(&guess), &mut out)
             };
             let case = format!("{metric:?}, prepared {prepared}");
             assert_eq!(status, sie_status::Ok, "{case}: {}", ctx.last_error());
@@ -415,7 +391,7 @@ fn a_far_guess_onto_a_target_of_nearly_one_point_stays_finite() {
             let status = if prepared {
                 ctx.register_prepared(&source, target, Some(guess), &mut out)
             } else {
-                ctx.register(&source, target, Some(guess), &mut out)
+                ctx.register_from(&source, target, Some(guess), &mut out)
             };
             let case = format!("{metric:?}, prepared {prepared}, target {target:?}");
             if status == sie_status::Ok {

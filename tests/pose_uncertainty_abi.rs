@@ -35,20 +35,7 @@ impl Context {
     /// ICP on packed double clouds from the identity.
     fn register_clouds(&self, source: &[Point], target: &[Point]) -> Matrix4<f64> {
         let mut out = [SENTINEL; 16];
-        // SAFETY: packed arrays of the given counts; `out` holds 16 doubles.
-        let status = unsafe {
-            sie_context_register_d(
-                self.0,
-                source.as_ptr().cast(),
-                source.len(),
-                0,
-                target.as_ptr().cast(),
-                target.len(),
-                0,
-                null(),
-                out.as_mut_ptr(),
-            )
-        };
+        let status = self.register(source, target, &mut out);
         assert_eq!(status, sie_status::Ok, "{}", self.last_error());
         Matrix4::from_row_slice(&out)
     }

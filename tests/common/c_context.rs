@@ -1,6 +1,6 @@
 //! An owned `sie_context` for the tests that call the C ABI as a host would.
 use std::ffi::CStr;
-use std::ptr::null_mut;
+use std::ptr::{null, null_mut};
 
 use sie::ffi::*;
 
@@ -12,6 +12,35 @@ impl Context {
         let ctx = sie_context_new();
         assert!(!ctx.is_null());
         Context(ctx)
+    }
+
+    /// ICP on packed double clouds from the identity: the status, the transform in `out`.
+    pub fn register(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
+        self.register_from(source, target, None, out)
+    }
+
+    /// [`Context::register`] from `init` (row-major 4×4, or the identity).
+    pub fn register_from(
+        &self,
+        source: &[[f64; 3]],
+        target: &[[f64; 3]],
+        init: Option<&[f64; 16]>,
+        out: &mut [f64; 16],
+    ) -> sie_status {
+        // SAFETY: packed arrays of the given counts; `init` NULL or 16 doubles; `out` holds 16.
+        unsafe {
+            sie_context_register_d(
+                self.0,
+                source.as_ptr().cast(),
+                source.len(),
+                0,
+                target.as_ptr().cast(),
+                target.len(),
+                0,
+                init.map_or(null(), |t| t.as_ptr()),
+                out.as_mut_ptr(),
+            )
+        }
     }
 
     pub fn last_error(&self) -> String {

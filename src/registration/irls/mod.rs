@@ -121,16 +121,7 @@ pub(crate) fn run_pending(
     plan: &RunPlan,
     observer: Option<&mut Observer<'_>>,
 ) -> (RegistrationResult, PendingPerPoint) {
-    let precision_stop = if problem.rematches() {
-        PrecisionStop::Allowed
-    } else {
-        PrecisionStop::Never
-    };
-    let mut state = RunState {
-        weighting: Weighting::new(plan, precision_stop),
-        work: Workspace::default(),
-        times: StageTimes::default(),
-    };
+    let mut state = RunState::new(problem, plan);
     let end = iterate(problem, init, first_iteration, plan, &mut state, observer);
     report(problem, end, state)
 }
@@ -138,17 +129,25 @@ pub(crate) fn run_pending(
 /// The updates of `plan` from `init` without the report (no final evaluation, no per-point
 /// results): where a run leads, for screening a start before paying for a full run.
 pub(crate) fn settle(problem: &mut dyn Problem, init: Matrix4<f64>, plan: &RunPlan) -> Matrix4<f64> {
-    let precision_stop = if problem.rematches() {
-        PrecisionStop::Allowed
-    } else {
-        PrecisionStop::Never
-    };
-    let mut state = RunState {
-        weighting: Weighting::new(plan, precision_stop),
-        work: Workspace::default(),
-        times: StageTimes::default(),
-    };
+    let mut state = RunState::new(problem, plan);
     iterate(problem, init, 1, plan, &mut state, None).transform
+}
+
+impl RunState {
+    /// A run's start: `plan`'s weighting (a precision stop only where the pairs re-match),
+    /// empty buffers, no time spent.
+    fn new(problem: &dyn Problem, plan: &RunPlan) -> Self {
+        let precision_stop = if problem.rematches() {
+            PrecisionStop::Allowed
+        } else {
+            PrecisionStop::Never
+        };
+        RunState {
+            weighting: Weighting::new(plan, precision_stop),
+            work: Workspace::default(),
+            times: StageTimes::default(),
+        }
+    }
 }
 
 /// Where the loop ended.
