@@ -19,8 +19,8 @@
 mod clouds;
 mod config;
 mod correspondences;
-mod degeneracy;
 mod covariance;
+mod degeneracy;
 mod hooks;
 mod input;
 mod irls;

@@ -3,8 +3,8 @@
 
 use nalgebra::Matrix4;
 
-use crate::error::Error;
 use super::covariance::PoseUncertainty;
+use crate::error::Error;
 
 use crate::sie::HistogramModel;
 
