@@ -94,59 +94,58 @@ impl CostFunction {
 /// scale it estimated (Student-t) or used (the others; 0 for scale-free ones).
 pub fn baseline_weights(cost: CostFunction, residuals: &[f64], cols: usize, weights: &mut [f64]) -> f64 {
     debug_assert_eq!(residuals.len(), weights.len() * cols);
-    let norm = |row: &[f64]| row.iter().map(|r| r * r).sum::<f64>().sqrt();
-    let mut each = |f: &dyn Fn(f64) -> f64| {
-        for (w, row) in weights.iter_mut().zip(residuals.chunks_exact(cols)) {
-            *w = f(norm(row));
-        }
+    let scale2 = match cost {
+        CostFunction::StudentT { dof } => student_t_scale2(dof, residuals, cols),
+        _ => 0.0,
     };
+    for (w, row) in weights.iter_mut().zip(residuals.chunks_exact(cols)) {
+        *w = baseline_weight(cost, row, scale2);
+    }
+    match cost {
+        CostFunction::Sie | CostFunction::L2 | CostFunction::Lp { .. } => 0.0,
+        CostFunction::StudentT { .. } => scale2.sqrt(),
+        _ => cost.parameter(),
+    }
+}
+
+/// The weight [`baseline_weights`] gives one row, with the squared Student-t scale it
+/// estimated (`scale2`; unused by the other costs).
+pub(crate) fn baseline_weight(cost: CostFunction, row: &[f64], scale2: f64) -> f64 {
+    let u = row.iter().map(|r| r * r).sum::<f64>().sqrt();
     match cost {
         CostFunction::Sie => unreachable!("SIE weights come from the estimator"),
-        CostFunction::L2 => {
-            each(&|_| 1.0);
-            0.0
-        }
+        CostFunction::L2 => 1.0,
         CostFunction::TruncatedL2 { threshold } => {
-            each(&|u| if u < threshold { 1.0 } else { 0.0 });
-            threshold
+            if u < threshold {
+                1.0
+            } else {
+                0.0
+            }
         }
-        CostFunction::Lp { p } => {
-            each(&|u| u.max(LP_DELTA).powf(p - 2.0));
-            0.0
-        }
+        CostFunction::Lp { p } => u.max(LP_DELTA).powf(p - 2.0),
         CostFunction::Huber { scale } => {
-            each(&|u| if u <= scale { 1.0 } else { scale / u });
-            scale
+            if u <= scale {
+                1.0
+            } else {
+                scale / u
+            }
         }
-        CostFunction::Cauchy { scale } => {
-            each(&|u| 1.0 / (1.0 + (u / scale).powi(2)));
-            scale
-        }
-        CostFunction::GemanMcClure { scale } => {
-            each(&|u| 1.0 / (1.0 + (u / scale).powi(2)).powi(2));
-            scale
-        }
+        CostFunction::Cauchy { scale } => 1.0 / (1.0 + (u / scale).powi(2)),
+        CostFunction::GemanMcClure { scale } => 1.0 / (1.0 + (u / scale).powi(2)).powi(2),
         CostFunction::Tukey { scale } => {
-            each(&|u| {
-                if u < scale {
-                    (1.0 - (u / scale).powi(2)).powi(2)
-                } else {
-                    0.0
-                }
-            });
-            scale
+            if u < scale {
+                (1.0 - (u / scale).powi(2)).powi(2)
+            } else {
+                0.0
+            }
         }
         CostFunction::StudentT { dof } => {
-            let scale2 = student_t_scale2(dof, residuals, cols);
-            let m = cols as f64;
-            each(&|u| {
-                if scale2 > 0.0 {
-                    (dof + m) / (dof + u * u / scale2)
-                } else {
-                    1.0
-                }
-            });
-            scale2.sqrt()
+            let m = row.len() as f64;
+            if scale2 > 0.0 {
+                (dof + m) / (dof + u * u / scale2)
+            } else {
+                1.0
+            }
         }
     }
 }

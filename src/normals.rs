@@ -162,6 +162,39 @@ impl NormalScale {
         self.normals_within(points, index, queries, k, NOISY_NEIGHBOURHOOD_RATIO, workers)
     }
 
+    /// [`NormalScale::planar_normals_at`] with `k` neighbours and, from the `few` nearest of the
+    /// same neighbourhood, [`NormalScale::normals_at`] with `few` (one search for both).
+    pub fn planar_and_few_normals_at(
+        &self,
+        points: &[Point],
+        index: &NearestNeighbours,
+        queries: &[Point],
+        k: usize,
+        few: usize,
+        workers: &Workers,
+    ) -> Vec<[Point; 2]> {
+        let (cloud, index) = match &self.thinned {
+            None => (points, index),
+            Some((thinned, thin_index)) => (thinned.as_slice(), thin_index),
+        };
+        let mut normals = vec![[[0.0; 3]; 2]; queries.len()];
+        workers.for_each_chunk_of(NORMALS_CHUNK, &mut normals, |first, chunk| {
+            let mut neighbours = Vec::with_capacity(k.max(few));
+            for (offset, pair) in chunk.iter_mut().enumerate() {
+                let p = &queries[first + offset];
+                index.nearest_k(p, k.max(few), &mut neighbours);
+                let nearest = &neighbours[..few.min(neighbours.len())];
+                pair[0] = normal_of(
+                    p,
+                    &covariance(cloud, &neighbours[..k.min(neighbours.len())]),
+                    NOISY_NEIGHBOURHOOD_RATIO,
+                );
+                pair[1] = normal_of(p, &covariance(cloud, nearest), f64::INFINITY);
+            }
+        });
+        normals
+    }
+
     fn normals_within(
         &self,
         points: &[Point],
@@ -260,23 +293,27 @@ fn normals_from(
         for (offset, normal) in chunk.iter_mut().enumerate() {
             let p = &points[first + offset];
             index.nearest_k(p, k, &mut neighbours);
-            let spread = covariance(cloud, &neighbours);
-            if max_thickness < f64::INFINITY {
-                let [smallest, middle, _] = eigenvalues_ascending(&spread);
-                // Not `<=`: a NaN or a middle of 0 is no plane either.
-                if !(smallest.max(0.0) <= max_thickness * middle && middle > 0.0) {
-                    *normal = [0.0; 3];
-                    continue;
-                }
-            }
-            *normal = match smallest_eigenvector(&spread) {
-                Some(n) if dot(&n, p) > 0.0 => n.map(|c| -c),
-                Some(n) => n,
-                None => [0.0; 3],
-            };
+            *normal = normal_of(p, &covariance(cloud, &neighbours), max_thickness);
         }
     });
     normals
+}
+
+/// The normal at `p` of a neighbourhood of covariance `spread`, towards the origin; `[0, 0, 0]`
+/// when it is no plane or thicker than `max_thickness` (λ_min / λ_mid).
+fn normal_of(p: &Point, spread: &[[f64; 3]; 3], max_thickness: f64) -> Point {
+    if max_thickness < f64::INFINITY {
+        let [smallest, middle, _] = eigenvalues_ascending(spread);
+        // Not `<=`: a NaN or a middle of 0 is no plane either.
+        if !(smallest.max(0.0) <= max_thickness * middle && middle > 0.0) {
+            return [0.0; 3];
+        }
+    }
+    match smallest_eigenvector(spread) {
+        Some(n) if dot(&n, p) > 0.0 => n.map(|c| -c),
+        Some(n) => n,
+        None => [0.0; 3],
+    }
 }
 
 /// Covariance (divided by n) of the selected points about their mean; centring first keeps

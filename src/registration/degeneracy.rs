@@ -69,50 +69,71 @@ pub(crate) fn surface_rows(probabilities: &[f64]) -> Vec<(usize, f64)> {
 }
 
 /// One pair: the source point moved by the result, its matched target (curve-order index
-/// into the prepared target) and its weight (`surface_rows`).
+/// into the prepared target), its weight (`surface_rows`) and its row.
 pub(crate) struct SurfacePair {
     pub(crate) moved: Point,
     pub(crate) target: u32,
     pub(crate) weight: f64,
+    pub(crate) row: usize,
 }
 
-/// The conditioning of the surfaces under `pairs` (see the module documentation), with
-/// normals estimated at their targets now (given normals are per point, as noisy as
-/// point-to-plane's own). Pairs whose target has no normal (no plane in its neighbourhood),
-/// or whose point, normal or weight is not finite, are left out; fewer than 6 left give 0.
-pub(crate) fn surface_conditioning(
+/// A pair with the surface normal at its target.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SurfaceRow {
+    pub(crate) moved: Point,
+    pub(crate) target: u32,
+    pub(crate) normal: Point,
+    pub(crate) weight: f64,
+    pub(crate) row: usize,
+}
+
+/// The pairs with their surface normals estimated at their targets now (given normals are per
+/// point, as noisy as point-to-plane's own), and with the targets' per-point normals
+/// (`PreparedTarget::surface_and_point_normals`). Left out of the first: pairs whose target has
+/// no surface normal (no plane in its neighbourhood); of the second: those without a per-point
+/// normal; of both: those whose point, normal or weight is not finite.
+pub(crate) fn surface_sample(
     pairs: &[SurfacePair],
     target: &PreparedTarget,
     workers: &Workers,
-) -> PlaneConditioning {
+) -> (Vec<SurfaceRow>, Vec<SurfaceRow>) {
     let targets: Vec<u32> = pairs.iter().map(|pair| pair.target).collect();
     let neighbours = surface_neighbours(target.indexed_len(), target.normal_neighbours());
-    let normals = target.surface_normals(&targets, neighbours, workers);
-    let with_normal: Vec<(Point, Point, f64)> = pairs
-        .iter()
-        .zip(normals)
-        .map(|(pair, normal)| (pair.moved, normal, pair.weight))
-        .filter(|(moved, normal, weight)| {
-            *normal != [0.0; 3]
-                && normal.iter().chain(moved).all(|c| c.is_finite())
-                && weight.is_finite()
-                && *weight > 0.0
-        })
-        .collect();
+    let (surface, point) = target.surface_and_point_normals(&targets, neighbours, workers);
+    let with = |normals: Vec<Point>| -> Vec<SurfaceRow> {
+        pairs
+            .iter()
+            .zip(normals)
+            .map(|(pair, normal)| SurfaceRow {
+                moved: pair.moved,
+                target: pair.target,
+                normal,
+                weight: pair.weight,
+                row: pair.row,
+            })
+            .filter(|row| {
+                row.normal != [0.0; 3]
+                    && row.normal.iter().chain(&row.moved).all(|c| c.is_finite())
+                    && row.weight.is_finite()
+                    && row.weight > 0.0
+            })
+            .collect()
+    };
+    (with(surface), with(point))
+}
+
+/// The conditioning of the surfaces under a sample (see the module documentation); fewer than
+/// 6 rows give 0.
+pub(crate) fn surface_conditioning(rows: &[SurfaceRow]) -> PlaneConditioning {
     // Six unknowns: fewer rows cannot fix them all.
-    if with_normal.len() < 6 {
+    if rows.len() < 6 {
         return PlaneConditioning {
             ratio: 0.0,
             loosest: None,
         };
     }
-    let weights: Vec<f64> = with_normal.iter().map(|row| row.2).collect();
-    plane_conditioning_by(
-        with_normal.len(),
-        |i| with_normal[i].0,
-        |i| with_normal[i].1,
-        &weights,
-    )
+    let weights: Vec<f64> = rows.iter().map(|row| row.weight).collect();
+    plane_conditioning_by(rows.len(), |i| rows[i].moved, |i| rows[i].normal, &weights)
 }
 
 #[cfg(test)]
@@ -154,9 +175,10 @@ mod tests {
                 moved: target.points()[t],
                 target: t as u32,
                 weight,
+                row: t,
             })
             .collect();
-        surface_conditioning(&pairs, &target, &workers)
+        surface_conditioning(&surface_sample(&pairs, &target, &workers).0)
     }
 
     const X: Point = [1.0, 0.0, 0.0];
@@ -205,22 +227,26 @@ mod tests {
             moved,
             target: t as u32,
             weight: 1.0,
+            row: t,
+        };
+        let conditioning = |pairs: &[SurfacePair], target: &PreparedTarget| {
+            surface_conditioning(&surface_sample(pairs, target, &workers).0).ratio
         };
         let five: Vec<SurfacePair> = (0..5)
             .map(|t| pair(t * 1600, target.points()[t * 1600]))
             .collect();
-        assert_eq!(surface_conditioning(&five, &target, &workers).ratio, 0.0);
-        assert_eq!(surface_conditioning(&[], &target, &workers).ratio, 0.0);
+        assert_eq!(conditioning(&five, &target), 0.0);
+        assert_eq!(conditioning(&[], &target), 0.0);
         let mut all: Vec<SurfacePair> = (0..closed.len()).map(|t| pair(t, target.points()[t])).collect();
-        let clean = surface_conditioning(&all, &target, &workers).ratio;
+        let clean = conditioning(&all, &target);
         all[7].moved = [f64::NAN; 3];
-        let with_nan = surface_conditioning(&all, &target, &workers).ratio;
+        let with_nan = conditioning(&all, &target);
         assert!(with_nan.is_finite() && (with_nan - clean).abs() < 0.01 * clean);
         // Points on a line have no plane, hence no normal: every pair is left out.
         let line: Vec<Point> = (0..200).map(|i| [0.01 * i as f64, 0.0, 0.0]).collect();
         let target = PreparedTarget::new(&line, None, &PrepareOptions::default()).unwrap();
         let on_line: Vec<SurfacePair> = (0..line.len()).map(|t| pair(t, target.points()[t])).collect();
-        assert_eq!(surface_conditioning(&on_line, &target, &workers).ratio, 0.0);
+        assert_eq!(conditioning(&on_line, &target), 0.0);
     }
 
     /// Few rows: all of positive weight, as they are. Many: about SURFACE_PAIRS draws, in

@@ -502,20 +502,35 @@ impl PreparedTarget {
         }
     }
 
-    /// Normals at the curve-order targets `targets` from their `neighbours` nearest points, at
-    /// the scale estimated normals use (given normals or not), and not kept: with more
+    /// Normals at the curve-order targets `targets`, at the scale estimated normals use (given
+    /// normals or not), not kept. First from their `neighbours` nearest points: with more
     /// neighbours than `normal_neighbours`, a view of the surfaces in which the points' noise
-    /// hardly tilts a normal. `[0, 0, 0]` where the neighbourhood is no plane (an edge, a
-    /// corner: `NormalScale::planar_normals_at`).
-    pub(crate) fn surface_normals(
+    /// hardly tilts a normal, `[0, 0, 0]` where the neighbourhood is no plane (an edge, a
+    /// corner: `NormalScale::planar_normals_at`). Second, from the nearest of the same
+    /// neighbourhoods, the per-point normals point-to-plane uses: given, estimated, or
+    /// estimated now from the `normal_neighbours` nearest.
+    pub(crate) fn surface_and_point_normals(
         &self,
         targets: &[u32],
         neighbours: usize,
         workers: &Workers,
-    ) -> Vec<Point> {
+    ) -> (Vec<Point>, Vec<Point>) {
         let scale = self.normal_scale(workers);
         let queries: Vec<Point> = targets.iter().map(|&t| self.points[t as usize]).collect();
-        scale.planar_normals_at(&self.points, &self.index, &queries, neighbours, workers)
+        let few = self.normal_neighbours.min(self.points.len());
+        let both =
+            scale.planar_and_few_normals_at(&self.points, &self.index, &queries, neighbours, few, workers);
+        let known = self.normals();
+        let stored = |t: u32| match &known {
+            Normals::None => None,
+            Normals::Given(normals) => Some(normals[t as usize]),
+            Normals::Estimated(estimated) => estimated.get(t as usize),
+        };
+        targets
+            .iter()
+            .zip(both)
+            .map(|(&t, [surface, point])| (surface, stored(t).unwrap_or(point)))
+            .unzip()
     }
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not

@@ -222,41 +222,51 @@ impl SieEstimator {
             }
             return sum / rows as f64;
         }
-        // Columns without spread (pooled mode) carry no evidence and take no part.
-        let active = |j: usize| {
-            self.options.histogram == HistogramMode::PerColumn || self.active.get(j).copied().unwrap_or(true)
-        };
-        let columns = (0..cols).filter(|&j| active(j)).count().max(1);
         let (total, count) = residuals
             .iter()
             .enumerate()
-            .filter(|(idx, _)| active(idx % cols))
+            .filter(|(idx, _)| self.takes_part(idx % cols))
             .fold((0.0, 0usize), |(sum, n), (idx, &r)| {
                 (sum + self.component_probability(r, idx % cols), n + 1)
             });
         let prior = (total / count.max(1) as f64).clamp(1e-9, 1.0 - 1e-9);
+        for (o, row) in out.iter_mut().zip(residuals.chunks_exact(cols)) {
+            *o = self.row_probability(row, prior);
+        }
+        prior
+    }
+
+    /// Columns without spread (pooled mode) carry no evidence and take no part.
+    fn takes_part(&self, col: usize) -> bool {
+        self.options.histogram == HistogramMode::PerColumn || self.active.get(col).copied().unwrap_or(true)
+    }
+
+    /// P(I|R) of one row as [`SieEstimator::probabilities`] gives it, with the prior P(I)
+    /// that call returned (unused for one column).
+    pub fn row_probability(&self, row: &[f64], prior: f64) -> f64 {
+        if row.len() == 1 {
+            return self.component_probability(row[0], 0);
+        }
+        let columns = (0..row.len()).filter(|&j| self.takes_part(j)).count().max(1);
         // §4.2: γ = (P(I)/P(O))^(m-1), kept as a logarithm: with hundreds of columns the
         // products below leave f64's range (200 columns of N(0, 1) gave P = 0 for every row).
         let log_gamma = match self.options.gamma {
             GammaRule::Paper => (columns as f64 - 1.0) * (prior.ln() - (1.0 - prior).ln()),
             GammaRule::One => 0.0,
         };
-        for (o, row) in out.iter_mut().zip(residuals.chunks_exact(cols)) {
-            let (mut log_inlier, mut log_outlier) = (0.0, 0.0);
-            for (j, &r) in row.iter().enumerate().filter(|(j, _)| active(*j)) {
-                let p = self.row_component_probability(r, j);
-                log_inlier += p.ln();
-                log_outlier += (-p).ln_1p();
-            }
-            // P(I|R_i) = Πp / (Πp + γ·Π(1-p)) = 1 / (1 + exp(ln γ + ΣlnΠ(1-p) − ΣlnΠp))
-            let log_ratio = log_gamma + log_outlier - log_inlier;
-            *o = if log_inlier == f64::NEG_INFINITY {
-                0.0
-            } else {
-                1.0 / (1.0 + log_ratio.exp())
-            };
+        let (mut log_inlier, mut log_outlier) = (0.0, 0.0);
+        for (j, &r) in row.iter().enumerate().filter(|(j, _)| self.takes_part(*j)) {
+            let p = self.row_component_probability(r, j);
+            log_inlier += p.ln();
+            log_outlier += (-p).ln_1p();
         }
-        prior
+        // P(I|R_i) = Πp / (Πp + γ·Π(1-p)) = 1 / (1 + exp(ln γ + ΣlnΠ(1-p) − ΣlnΠp))
+        let log_ratio = log_gamma + log_outlier - log_inlier;
+        if log_inlier == f64::NEG_INFINITY {
+            0.0
+        } else {
+            1.0 / (1.0 + log_ratio.exp())
+        }
     }
 
     /// Scale σ_j + β_j of each histogram (normalised units).
@@ -385,6 +395,10 @@ mod tests {
         let pout = p[800..].iter().sum::<f64>() / 800.0;
         assert!(pin > 0.95, "{pin}");
         assert!(pout < 0.05, "{pout}");
+        // One row at a time with the returned prior: the same probabilities, bit for bit.
+        for (row, expected) in r.chunks_exact(3).zip(&p) {
+            assert_eq!(sie.row_probability(row, prior).to_bits(), expected.to_bits());
+        }
     }
     /// Hundreds of columns, one histogram each, fitted on 200 samples: some σ come out well
     /// below the spread (0.3 for N(0, 1)), and an inlier's component outside such a range used

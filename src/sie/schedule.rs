@@ -208,6 +208,8 @@ pub struct Schedule {
     started: bool,
     /// Σ P(I|R_i) of the last update: the effective number of inlier rows.
     inlier_mass: f64,
+    /// P(I) of the last `probabilities` (see [`SieEstimator::row_probability`]).
+    prior: f64,
 }
 
 impl Schedule {
@@ -222,6 +224,7 @@ impl Schedule {
             first_level: true,
             started: false,
             inlier_mass: 0.0,
+            prior: 0.5,
         }
     }
 
@@ -301,7 +304,12 @@ impl Schedule {
         if !self.started {
             self.weigh(normalised, cols, |_| 1.0, out);
         }
-        self.estimator.probabilities(normalised, cols, out);
+        self.prior = self.estimator.probabilities(normalised, cols, out);
+    }
+
+    /// P(I|R) of one row under the model of the last `probabilities`.
+    pub fn row_probability(&self, row: &[f64]) -> f64 {
+        self.estimator.row_probability(row, self.prior)
     }
 
     /// The narrowest model width min_j(σ_j + β_j), normalised units.

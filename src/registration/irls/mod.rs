@@ -10,6 +10,7 @@ use std::time::Instant;
 
 use nalgebra::Matrix4;
 
+use super::covariance::RowWeight;
 use super::hooks::Observer;
 use super::problem::{Problem, RowScales, Rows, StepPoints};
 use super::result::{
@@ -66,6 +67,10 @@ fn weighted_rms(residual: &[f64], cols: usize, weights: &[f64]) -> f64 {
     let scaled: f64 = counted().map(|(w, n)| w * (n / largest).powi(2)).sum();
     largest * (scaled / weight_sum).sqrt()
 }
+
+/// The pose's uncertainty measures the slope of the weighted residual P(u)·u over ± this
+/// fraction of the inliers' spread (`covariance::RowWeight`).
+const SLOPE_STEP: f64 = 0.25;
 
 /// An update that moved the rows by more than this many model widths σ+β: the pose is still
 /// travelling (see [`iterate`]).
@@ -311,6 +316,7 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     let rows = problem.rows();
     let normalised = normalised(rows, cols, &mut work.normalised);
     weighting.final_probabilities(normalised, cols, &mut work.probabilities);
+    let spread = weighted_rms(normalised, cols, &work.probabilities) / (cols as f64).sqrt();
     work.normalised = Vec::new();
     // ICP's solves miss sliding along surfaces (point-to-point sees the points' spread,
     // point-to-plane noisy per-point normals): the surfaces' own measure too, the weaker wins.
@@ -322,7 +328,11 @@ fn report(problem: &mut dyn Problem, end: LoopEnd, state: RunState) -> (Registra
     let rows = problem.rows();
     let weight_sum = work.probabilities.iter().fold(0.0, |sum, p| sum + p);
     let rmse = weighted_rms(&rows.residual, cols, &work.probabilities);
-    let uncertainty = problem.pose_uncertainty(&end.transform, &work.probabilities);
+    let weight = RowWeight {
+        probability: &|row: &[f64]| weighting.row_probability(row),
+        step: SLOPE_STEP * spread,
+    };
+    let uncertainty = problem.pose_uncertainty(&end.transform, &work.probabilities, &weight);
     let model = weighting.summary();
     let result = RegistrationResult {
         transform: end.transform,

@@ -1,7 +1,7 @@
 //! How a run weighs its rows: SIE's schedule (§4.3, §4.5) or a baseline cost (§5).
 
 use super::plan::{RunCost, RunPlan};
-use crate::cost::{CostFunction, baseline_weights};
+use crate::cost::{CostFunction, baseline_weight, baseline_weights};
 use crate::registration::problem::Rows;
 use crate::sie::HistogramModel;
 use crate::sie::schedule::{Convergence, PrecisionStop, Schedule};
@@ -9,7 +9,14 @@ use crate::sie::schedule::{Convergence, PrecisionStop, Schedule};
 /// How correspondences are weighted.
 pub(crate) enum Weighting {
     Sie(Box<Schedule>),
-    Baseline { cost: CostFunction, scale: f64 },
+    Baseline {
+        cost: CostFunction,
+        scale: f64,
+        /// The scale (Student-t) of the final rows' weights …
+        final_scale: f64,
+        /// … and the largest of them, which their probabilities are relative to.
+        largest: f64,
+    },
 }
 
 /// The fitted noise model as the result reports it.
@@ -33,6 +40,8 @@ impl Weighting {
             RunCost::Baseline(cost) => Weighting::Baseline {
                 cost: *cost,
                 scale: 0.0,
+                final_scale: 0.0,
+                largest: 0.0,
             },
         }
     }
@@ -62,7 +71,7 @@ impl Weighting {
         weights.resize(rows.len(), 0.0);
         match self {
             Weighting::Sie(schedule) => schedule.weigh(normalised, cols, |row| rows.scale.get(row), weights),
-            Weighting::Baseline { cost, scale } => {
+            Weighting::Baseline { cost, scale, .. } => {
                 *scale = baseline_weights(*cost, normalised, cols, weights);
                 if let Some(scales) = rows.scale.per_row() {
                     for (w, f) in weights.iter_mut().zip(scales) {
@@ -93,12 +102,37 @@ impl Weighting {
             Weighting::Sie(schedule) => {
                 schedule.probabilities(normalised, cols, probabilities);
             }
-            Weighting::Baseline { cost, .. } => {
+            Weighting::Baseline {
+                cost,
+                final_scale,
+                largest,
+                ..
+            } => {
                 // The weights computed in place: no second buffer at the registration's peak.
-                baseline_weights(*cost, normalised, cols, probabilities);
-                let largest = probabilities.iter().cloned().fold(0.0, f64::max);
+                *final_scale = baseline_weights(*cost, normalised, cols, probabilities);
+                *largest = probabilities.iter().cloned().fold(0.0, f64::max);
                 for p in probabilities.iter_mut() {
-                    *p = if largest > 0.0 { *p / largest } else { 0.0 };
+                    *p = if *largest > 0.0 { *p / *largest } else { 0.0 };
+                }
+            }
+        }
+    }
+
+    /// The probability [`Weighting::final_probabilities`] gives one normalised residual row
+    /// (any values, not only the final rows'), under the same final model.
+    pub(crate) fn row_probability(&self, row: &[f64]) -> f64 {
+        match self {
+            Weighting::Sie(schedule) => schedule.row_probability(row),
+            Weighting::Baseline {
+                cost,
+                final_scale,
+                largest,
+                ..
+            } => {
+                if *largest > 0.0 {
+                    baseline_weight(*cost, row, final_scale * final_scale) / largest
+                } else {
+                    0.0
                 }
             }
         }
@@ -145,6 +179,37 @@ impl Weighting {
         match self {
             Weighting::Sie(schedule) => schedule.estimator().models().to_vec(),
             Weighting::Baseline { .. } => Vec::new(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A row's probability alone is what the final probabilities gave it, for a baseline whose
+    /// scale is estimated from all the rows (Student-t) as for one with a fixed scale.
+    #[test]
+    fn a_row_alone_has_its_final_probability() {
+        let residuals: Vec<f64> = (0..300)
+            .map(|k| 0.05 * ((k as f64) * 0.77).sin() * (1.0 + (k % 7) as f64))
+            .collect();
+        for cost in [
+            CostFunction::StudentT { dof: 5.0 },
+            CostFunction::Cauchy { scale: 0.1 },
+        ] {
+            let mut weighting = Weighting::Baseline {
+                cost,
+                scale: 0.0,
+                final_scale: 0.0,
+                largest: 0.0,
+            };
+            let mut probabilities = Vec::new();
+            weighting.final_probabilities(&residuals, 3, &mut probabilities);
+            for (row, p) in residuals.chunks_exact(3).zip(&probabilities) {
+                let alone = weighting.row_probability(row);
+                assert!((alone - p).abs() < 1e-12, "{cost:?}: {alone} vs {p}");
+            }
         }
     }
 }

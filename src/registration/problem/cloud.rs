@@ -18,8 +18,10 @@ use crate::median::median;
 use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::config::{Metric, RegistrationConfig};
-use crate::registration::covariance::{InformationSum, PoseUncertainty};
-use crate::registration::degeneracy::{SurfacePair, surface_conditioning, surface_rows};
+use crate::registration::covariance::{InformationSum, PoseUncertainty, RowWeight};
+use crate::registration::degeneracy::{
+    SurfacePair, SurfaceRow, surface_conditioning, surface_rows, surface_sample,
+};
 use crate::registration::result::StageTimes;
 use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 
@@ -141,6 +143,9 @@ pub(crate) struct CloudProblem<'a> {
     linearised: Matrix4<f64>,
     /// Seconds this registration spent on its target.
     setup: SetupTime,
+    /// The rows the last `surface_conditioning` drew, with their targets' per-point normals (the
+    /// pose's uncertainty uses them).
+    surfaces: Vec<SurfaceRow>,
 }
 
 impl<'a> CloudProblem<'a> {
@@ -216,6 +221,7 @@ impl<'a> CloudProblem<'a> {
                 normals: scale_seconds,
                 ..SetupTime::default()
             },
+            surfaces: Vec::new(),
         })
     }
 
@@ -638,22 +644,34 @@ impl Problem for CloudProblem<'_> {
                     moved: transform_point(transform, &pass.points[k]),
                     target: m.nearest,
                     weight,
+                    row,
                 });
                 wanted.next();
             }
         }
-        let conditioning = surface_conditioning(&pairs, self.target, &self.workers);
+        let (surfaces, rows) = surface_sample(&pairs, self.target, &self.workers);
+        let conditioning = surface_conditioning(&surfaces);
+        self.surfaces = rows;
         self.setup.normals += started.elapsed().as_secs_f64();
         Some(conditioning)
     }
 
     /// Visits the evaluation pass's matches in the order and with the filter of `fill_rows`,
-    /// so row i is the i-th match visited.
-    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty {
+    /// so row i is the i-th match visited. Rows are correlated by the cells of their targets;
+    /// point-to-point's response to the pose comes from the surfaces' sample.
+    fn pose_uncertainty(
+        &self,
+        transform: &Matrix4<f64>,
+        probabilities: &[f64],
+        weight: &RowWeight,
+    ) -> PoseUncertainty {
         let pass = self.pass(self.pass_for(Purpose::Evaluate));
         let (target, rows) = (self.target, &self.rows);
         let normals = target.normals();
         let plane = self.metric == Metric::PointToPlane;
+        // Point-to-point without a sample of the surfaces (a target with no plane anywhere)
+        // responds as fixed correspondences would.
+        let on_surfaces = !plane && self.surfaces.len() >= 6;
         let mut sum = InformationSum::about(
             transform_point(transform, &self.anchor),
             CORRELATED_SPACINGS * self.target.spacing(),
@@ -673,14 +691,78 @@ impl Problem for CloudProblem<'_> {
             }
             let p = transform_point(transform, &pass.points[k]);
             let (scale, probability) = (rows.scale.get(row), probabilities[row]);
+            let key = Some(&target.points()[t]);
             if plane {
-                sum.add_plane(&p, &normal, rows.residual[row], scale, probability);
+                sum.add_plane(&p, &normal, key, rows.residual[row], scale, probability, weight);
             } else {
-                sum.add_point(&p, &rows.residual[3 * row..3 * row + 3], scale, probability);
+                let residual = &rows.residual[3 * row..3 * row + 3];
+                sum.add_point(
+                    &p,
+                    key,
+                    residual,
+                    scale,
+                    probability,
+                    (!on_surfaces).then_some(weight),
+                );
             }
             row += 1;
         }
-        sum.finish()
+        if on_surfaces {
+            // Σ_i P_i·Jᵀn nᵀJ / F_i² over every row, from the sample drawn in proportion to P:
+            // each draw stands for ΣP / Σw of the probability.
+            let mass: f64 = probabilities.iter().filter(|p| **p > 0.0).sum();
+            let draws: f64 = self.surfaces.iter().map(|s| s.weight).sum();
+            for surface in &self.surfaces {
+                let scale = rows.scale.get(surface.row);
+                let factor = mass / draws * surface.weight / (scale * scale);
+                sum.add_surface_response(&surface.moved, &surface.normal, factor);
+            }
+        }
+        sum.finish(self.matching_response())
+    }
+}
+
+/// The response factor s of the pose's uncertainty is not taken below this: a sample that
+/// barely responds is not a surface the pose rests on.
+const MIN_MATCHING_RESPONSE: f64 = 0.1;
+
+/// Rows of the surfaces' sample matched again for s, at most: its standard error is then about
+/// 0.02 where the targets' noise moves half the matches, far less where it moves few.
+const MATCHING_RESPONSE_ROWS: usize = 1_024;
+
+impl CloudProblem<'_> {
+    /// s (`covariance`): how much of a move off its surface a point's residual keeps when it is
+    /// matched again. Rows of the surfaces' sample are moved by ±h along their normals (h the
+    /// spread of their residuals along them) and matched again; s = Σ w·nᵀ(Δp − Δq) / (2h·Σ w),
+    /// where the target point found moves by Δq = q₊ − q₋ with the point when the targets'
+    /// noise lets it choose one on the point's side. 1 without a sample.
+    fn matching_response(&self) -> f64 {
+        let (index, points) = (self.target.index(), self.target.points());
+        let stride = self.surfaces.len().div_ceil(MATCHING_RESPONSE_ROWS).max(1);
+        let rows = || self.surfaces.iter().step_by(stride);
+        let along = |row: &SurfaceRow, p: &Point, q: &Point| {
+            (0..3).map(|c| row.normal[c] * (p[c] - q[c])).sum::<f64>()
+        };
+        let draws: f64 = rows().map(|s| s.weight).sum();
+        let spread = rows()
+            .map(|s| s.weight * along(s, &s.moved, &points[s.target as usize]).powi(2))
+            .sum::<f64>()
+            / draws;
+        let h = spread.sqrt();
+        if !(h > 0.0 && h.is_finite()) {
+            return 1.0;
+        }
+        let mut response = 0.0;
+        for surface in rows() {
+            let shifted = |sign: f64| -> Point {
+                std::array::from_fn(|c| surface.moved[c] + sign * h * surface.normal[c])
+            };
+            let (up, down) = (shifted(1.0), shifted(-1.0));
+            let (above, below) = (index.nearest_one(&up).0, index.nearest_one(&down).0);
+            let change = along(surface, &up, &points[above]) - along(surface, &down, &points[below]);
+            response += surface.weight * change / (2.0 * h);
+        }
+        (response / draws).clamp(MIN_MATCHING_RESPONSE, 1.0)
     }
 }
 

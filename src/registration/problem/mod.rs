@@ -13,7 +13,7 @@ use crate::geometry::{PlaneConditioning, Solve, transform_point};
 use crate::median::median;
 use crate::noise::combine;
 use crate::point::Point;
-use crate::registration::covariance::PoseUncertainty;
+use crate::registration::covariance::{PoseUncertainty, RowWeight};
 pub(crate) use cloud::CloudProblem;
 pub(crate) use pairs::CorrespondenceProblem;
 
@@ -173,8 +173,14 @@ pub(crate) trait Problem {
         None
     }
     /// The pose's uncertainty at `transform` from the rows of the last `evaluate_all` there,
-    /// one inlier probability per row (`covariance`).
-    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty;
+    /// one inlier probability per row, and the final model's `weight` (`covariance`); ICP's
+    /// after its `surface_conditioning` there.
+    fn pose_uncertainty(
+        &self,
+        transform: &Matrix4<f64>,
+        probabilities: &[f64],
+        weight: &RowWeight,
+    ) -> PoseUncertainty;
     /// The last rows' source and target indices, for their last reader. ICP takes them and
     /// frees the rows (empty until the next linearise or evaluation); fixed correspondences,
     /// whose rows are built once and reused, give copies.

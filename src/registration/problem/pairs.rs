@@ -8,7 +8,7 @@ use super::{
 };
 use crate::geometry::{Solve, transform_point, weighted_rigid_fit};
 use crate::point::Point;
-use crate::registration::covariance::{InformationSum, PoseUncertainty};
+use crate::registration::covariance::{InformationSum, PoseUncertainty, RowWeight};
 
 /// Matched pairs: source[i] ↔ target[i], residual T·a_i − b_i (the paper's simulation, §6).
 pub(crate) struct CorrespondenceProblem<'a> {
@@ -96,7 +96,14 @@ impl Problem for CorrespondenceProblem<'_> {
         self.linearise(transform, StepPoints::Sample)
     }
 
-    fn pose_uncertainty(&self, transform: &Matrix4<f64>, probabilities: &[f64]) -> PoseUncertainty {
+    /// Fixed correspondences: each row alone (no cells), its residual follows its point (N = I,
+    /// s = 1).
+    fn pose_uncertainty(
+        &self,
+        transform: &Matrix4<f64>,
+        probabilities: &[f64],
+        weight: &RowWeight,
+    ) -> PoseUncertainty {
         let mut sum = InformationSum::about(transform_point(transform, &self.source_anchor()), 0.0);
         for (i, ((a, _), residual)) in self
             .pairs
@@ -105,8 +112,15 @@ impl Problem for CorrespondenceProblem<'_> {
             .enumerate()
         {
             let p = transform_point(transform, a);
-            sum.add_point(&p, residual, self.rows.scale.get(i), probabilities[i]);
+            sum.add_point(
+                &p,
+                None,
+                residual,
+                self.rows.scale.get(i),
+                probabilities[i],
+                Some(weight),
+            );
         }
-        sum.finish()
+        sum.finish(1.0)
     }
 }
