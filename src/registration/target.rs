@@ -256,7 +256,11 @@ impl PreparedTarget {
             }
             (Some(normals), NonFinite::Reject) => {
                 require_finite("target normals", normals)?;
-                None
+                // Merged copies keep their first copy's normal, as they keep its point.
+                match kept {
+                    Some(_) => Some(pick(normals, "the target's kept normals")?),
+                    None => None,
+                }
             }
             (None, _) => None,
         };
