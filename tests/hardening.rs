@@ -9,24 +9,6 @@ use core::ffi::c_void;
 use sie::ffi::*;
 use sie::synthetic::{paper_simulation, room_scene};
 
-impl Context {
-    fn register_pairs(&self, source: &[[f64; 3]], target: &[[f64; 3]], out: &mut [f64; 16]) -> sie_status {
-        // SAFETY: packed arrays of equal length; `out` holds 16 doubles.
-        unsafe {
-            sie_context_register_correspondences_d(
-                self.0,
-                source.as_ptr().cast(),
-                0,
-                target.as_ptr().cast(),
-                0,
-                source.len(),
-                null(),
-                out.as_mut_ptr(),
-            )
-        }
-    }
-}
-
 const SENTINEL: f64 = -12345.0;
 
 fn finite_transform(t: &[f64; 16]) -> bool {

@@ -35,19 +35,7 @@ fn a_pair_at_the_end_of_the_range_is_an_outlier_among_good_pairs() {
         }
         let ctx = Context::new();
         let mut out = [f64::NAN; 16];
-        // SAFETY: packed double triples of `source.len()` pairs; `out` holds 16 doubles.
-        let status = unsafe {
-            sie_context_register_correspondences_d(
-                ctx.0,
-                source.as_ptr().cast(),
-                0,
-                target.as_ptr().cast(),
-                0,
-                source.len(),
-                null(),
-                out.as_mut_ptr(),
-            )
-        };
+        let status = ctx.register_pairs(&source, &target, &mut out);
         let what = format!("{side} at {value:e}");
         assert_eq!(status, sie_status::Ok, "{what}: {}", ctx.last_error());
         assert!(out.iter().all(|v| v.is_finite()), "{what}: transform {out:?}");

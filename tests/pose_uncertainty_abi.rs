@@ -77,21 +77,9 @@ impl Context {
         Matrix4::from_row_slice(&out)
     }
 
-    fn register_pairs(&self, source: &[Point], target: &[Point]) -> Matrix4<f64> {
+    fn register_pairs_ok(&self, source: &[Point], target: &[Point]) -> Matrix4<f64> {
         let mut out = [SENTINEL; 16];
-        // SAFETY: packed arrays of equal length; `out` holds 16 doubles.
-        let status = unsafe {
-            sie_context_register_correspondences_d(
-                self.0,
-                source.as_ptr().cast(),
-                0,
-                target.as_ptr().cast(),
-                0,
-                source.len(),
-                null(),
-                out.as_mut_ptr(),
-            )
-        };
+        let status = self.register_pairs(source, target, &mut out);
         assert_eq!(status, sie_status::Ok, "{}", self.last_error());
         Matrix4::from_row_slice(&out)
     }
@@ -187,7 +175,7 @@ fn c_abi_returns_the_rust_apis_matrices() {
         Hooks::default(),
     )
     .unwrap();
-    ctx.register_pairs(&pairs.source, &pairs.target);
+    ctx.register_pairs_ok(&pairs.source, &pairs.target);
     assert_eq!(ctx.uncertainty(), rust.uncertainty, "correspondences");
     assert_well_formed(&rust.uncertainty, "correspondences");
 }
@@ -208,7 +196,7 @@ fn covariance_is_the_documented_left_perturbation_in_the_target_frame() {
         .to_homogeneous();
     let pairs = paper_simulation(500, 200, 0.01, &t0, 7);
     let ctx = Context::new();
-    let transform = ctx.register_pairs(&pairs.source, &pairs.target);
+    let transform = ctx.register_pairs_ok(&pairs.source, &pairs.target);
     let u = ctx.uncertainty();
     assert_well_formed(&u, "pairs");
     let mut normal = Matrix6::zeros();
@@ -376,7 +364,7 @@ fn refusals_on_a_live_context_write_nothing() {
         sie_status::NoResult
     );
     let pairs = paper_simulation(200, 50, 0.01, &Matrix4::identity(), 1);
-    ctx.register_pairs(&pairs.source, &pairs.target);
+    ctx.register_pairs_ok(&pairs.source, &pairs.target);
     assert_eq!(read(null_mut(), null_mut()), sie_status::NullArgument);
     assert!(ctx.last_error().contains("out_covariance and out_information"));
     assert_eq!(

@@ -104,25 +104,21 @@ pub struct PoseUncertainty {
     pub information: Matrix6<f64>,
 }
 
+/// The 6 × 6 zero matrix (`Matrix6::zeros` is not a const fn).
+const ZERO: Matrix6<f64> = Matrix6::new(
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
+    0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+);
+
 impl PoseUncertainty {
     /// No uncertainty known (no rows, or a baseline run without inliers): zero matrices.
     pub const UNKNOWN: PoseUncertainty = PoseUncertainty {
-        covariance: Matrix6::new(
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-        ),
-        information: Matrix6::new(
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, //
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-        ),
+        covariance: ZERO,
+        information: ZERO,
     };
 
     /// The same uncertainty for points p' = length·p + centre (a change of units back to the

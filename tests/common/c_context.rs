@@ -43,6 +43,29 @@ impl Context {
         }
     }
 
+    /// Correspondence registration of packed double pairs from the identity: the status, the
+    /// transform in `out`.
+    pub fn register_pairs(
+        &self,
+        source: &[[f64; 3]],
+        target: &[[f64; 3]],
+        out: &mut [f64; 16],
+    ) -> sie_status {
+        // SAFETY: packed arrays of equal length; `out` holds 16 doubles.
+        unsafe {
+            sie_context_register_correspondences_d(
+                self.0,
+                source.as_ptr().cast(),
+                0,
+                target.as_ptr().cast(),
+                0,
+                source.len(),
+                null(),
+                out.as_mut_ptr(),
+            )
+        }
+    }
+
     pub fn last_error(&self) -> String {
         // SAFETY: live context; the string is copied before the next call.
         unsafe { CStr::from_ptr(sie_context_last_error(self.0)) }

@@ -676,19 +676,9 @@ impl Problem for CloudProblem<'_> {
             transform_point(transform, &self.anchor),
             CORRELATED_SPACINGS * self.target.spacing(),
         );
-        let mut row = 0;
-        for (k, m) in pass.matches.iter().enumerate() {
-            if m.nearest == NO_MATCH {
-                continue;
-            }
+        for (row, (k, m)) in self.rows_of(pass).enumerate().take(rows.len()) {
             let t = m.nearest as usize;
             let normal = if plane { normals.get(t) } else { [0.0; 3] };
-            if plane && normal == [0.0; 3] {
-                continue;
-            }
-            if row >= rows.len() {
-                break;
-            }
             let p = transform_point(transform, &pass.points[k]);
             let (scale, probability) = (rows.scale.get(row), probabilities[row]);
             let key = Some(&target.points()[t]);
@@ -705,7 +695,6 @@ impl Problem for CloudProblem<'_> {
                     (!on_surfaces).then_some(weight),
                 );
             }
-            row += 1;
         }
         if on_surfaces {
             // Σ_i P_i·Jᵀn nᵀJ / F_i² over every row, from the sample drawn in proportion to P:
