@@ -526,8 +526,8 @@ typedef struct sie_summary {
     double significance;
     /**
      * How well the weighted inliers constrain the pose at the last update, 0..1 (the least
-     * over the most constrained direction); below 1e-3 (inliers on one plane or one line) the
-     * verdict is not GOOD.
+     * over the most constrained direction); below 0.01 (inliers on one plane or one line, or
+     * only surfaces that run along the motion) the verdict is not GOOD.
      */
     double conditioning;
     /**

@@ -300,7 +300,7 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
             if result.stop_reason == StopReason::IterationLimit {
                 weak.push("stopped at the iteration limit before converging".to_string());
             }
-            if q.conditioning < 1e-3 {
+            if q.conditioning < sie::MIN_CONDITIONING {
                 let loose = q
                     .loose_direction
                     .map_or("some direction of the pose".to_string(), |d| {
@@ -311,7 +311,7 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
                     significant(q.conditioning)
                 ));
             }
-            if q.margin < 2.0 {
+            if q.margin < sie::MIN_MARGIN {
                 weak.push(format!(
                     "another start ended elsewhere nearly as significant (margin {})",
                     significant(q.margin)

@@ -335,8 +335,8 @@ pub struct sie_summary {
     /// large (nats; 0 when nothing stands out from chance, which makes the verdict UNSUPPORTED).
     pub significance: f64,
     /// How well the weighted inliers constrain the pose at the last update, 0..1 (the least
-    /// over the most constrained direction); below 1e-3 (inliers on one plane or one line) the
-    /// verdict is not GOOD.
+    /// over the most constrained direction); below 0.01 (inliers on one plane or one line, or
+    /// only surfaces that run along the motion) the verdict is not GOOD.
     pub conditioning: f64,
     /// Fitted sigma over the typical distance between neighbouring target points (clouds; 0 for
     /// correspondences, which have no spacing). Above 1 the verdict is not GOOD. DBL_MAX when

@@ -44,3 +44,4 @@ pub use result::{
     Quality, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry, Verdict,
 };
 pub use target::{PrepareOptions, PreparedTarget};
+pub use verdict::{MIN_CONDITIONING, MIN_MARGIN};

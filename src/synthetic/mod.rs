@@ -5,6 +5,7 @@
 //!   motion, and outliers that follow a second rigid motion.
 //! * [`room_scene`]: two partially overlapping noisy scans of a furnished room, with ground truth.
 //! * [`room_trajectory`]: a scanner moving through that room, frame by frame, with its poses.
+//! * [`lidar`]: a spinning multi-beam LiDAR driving through a procedural street.
 use std::f64::consts::TAU;
 
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vector3};
@@ -13,6 +14,8 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
 use crate::point::Point;
+
+pub mod lidar;
 
 /// Point pairs for correspondence registration: `source[i]` ↔ `target[i]`.
 #[derive(Clone, Debug, PartialEq)]
