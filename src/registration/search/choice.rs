@@ -1,13 +1,24 @@
 //! The choice between the results of several starts on one problem: each is judged on every
 //! row at the scale its own fit claims (`significance::at_scale`), the most significant one is
 //! kept, and how the others relate to it (the same pose or another) goes into its report.
+//!
+//! A result whose inliers leave some direction of the pose loose (conditioning below
+//! `MIN_CONDITIONING`) is no pose but a family of them: two LiDAR sweeps of a street 10 cm
+//! apart fit at zero motion on the ground and the fronts alone, and tighter there than at the
+//! right pose, since each beam meets its own ray's return; only the cars and poles, outliers
+//! there, fix the motion along the street. When two results differ by a move along the loose
+//! direction of one of them, that one must be clearly more significant (`MIN_MARGIN` times) to
+//! replace the other, is replaced by it when it is nearly as significant, and is no rival to
+//! it. Results apart in any other way (a half turn, another place) compete as before.
 
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Rotation3, Vector3};
+
+use crate::geometry::{LooseDirection, rotation_part, translation_part};
 
 use crate::registration::irls::{FinalModel, PendingPerPoint};
 use crate::registration::problem::{Problem, moved_apart};
 use crate::registration::result::{RegistrationResult, StartKind, StopReason, TraceEntry};
-use crate::registration::verdict::{Evidence, verdict};
+use crate::registration::verdict::{Evidence, MIN_CONDITIONING, MIN_MARGIN, verdict};
 
 /// The most significant result of SIE from several starts on one problem, each judged on
 /// every row at the scale its own fit claims (`significance::at_scale`).
@@ -34,6 +45,8 @@ struct End {
     precision: f64,
     /// The fitted inlier σ (RMS over the histograms).
     sigma: f64,
+    /// The direction its inliers leave loose, if any (see the module's description).
+    loose: Looseness,
 }
 
 impl End {
@@ -89,11 +102,13 @@ impl BestOfStarts {
         self.typical_scale = problem.rows().scale.median();
         let significance = cluster.significance;
         let precision = result.sigma_rms() * (6.0 / (cluster.count.max(1) as f64)).sqrt();
+        let loose = Looseness::of(&result);
         self.ends.push(End {
             transform: result.transform,
             significance,
             precision,
             sigma: result.sigma_rms(),
+            loose,
         });
         result.search.start = start;
         result.search.significance = significance;
@@ -104,6 +119,20 @@ impl BestOfStarts {
         // and the earlier start (the paper's) is kept.
         let replaces = match &self.best {
             None => true,
+            Some(Best {
+                significance: best_significance,
+                result: best,
+                ..
+            }) if loose.slides_between(&result.transform, &best.transform) => {
+                significance > MIN_MARGIN * *best_significance
+            }
+            Some(Best {
+                significance: best_significance,
+                result: best,
+                ..
+            }) if Looseness::of(best).slides_between(&best.transform, &result.transform) => {
+                significance * MIN_MARGIN >= *best_significance
+            }
             Some(Best {
                 significance: best_significance,
                 result: best,
@@ -182,7 +211,7 @@ impl BestOfStarts {
                 moved_apart(problem.probe_points(), &result.transform, &end.transform) / typical_scale;
             if apart <= end.same_pose_within(best_end.unwrap_or(end)) {
                 agreeing += 1;
-            } else {
+            } else if !end.loose.slides_between(&end.transform, &result.transform) {
                 runner_up = runner_up.max(end.significance);
             }
         }
@@ -199,6 +228,56 @@ impl BestOfStarts {
             model.evaluate_again(problem).spread_last(problem, &mut result);
         }
         result
+    }
+}
+
+/// Whether a result's inliers fix its pose, and if not, in which direction they leave it loose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Looseness {
+    Fixed,
+    /// Conditioning below `MIN_CONDITIONING`; the direction when the surfaces named it.
+    Loose(Option<LooseDirection>),
+}
+
+/// A move lies along a loose translation when its direction is within about 25° of it
+/// (|cos| ≥ this) and it turns by less than [`SLIDE_ROTATION`]; about a loose rotation axis,
+/// when its own rotation axis is that close to it.
+const SLIDE_ALIGNMENT: f64 = 0.9;
+/// See [`SLIDE_ALIGNMENT`] (radians, 1°).
+const SLIDE_ROTATION: f64 = 0.0175;
+
+impl Looseness {
+    fn of(result: &RegistrationResult) -> Self {
+        if result.quality.conditioning < MIN_CONDITIONING {
+            Looseness::Loose(result.quality.loose_direction)
+        } else {
+            Looseness::Fixed
+        }
+    }
+
+    /// Whether the move from the pose `from` (whose looseness this is) to `to` slides along the
+    /// loose direction: the data of `from` cannot tell the two apart in that direction, so
+    /// `to` is not another explanation but the same one, fixed further.
+    fn slides_between(&self, from: &Matrix4<f64>, to: &Matrix4<f64>) -> bool {
+        let Looseness::Loose(Some(direction)) = self else {
+            return false;
+        };
+        // The move of the points already placed by `from`, in the target frame.
+        let Some(inverse) = from.try_inverse() else {
+            return false;
+        };
+        let step = to * inverse;
+        let rotation = Rotation3::from_matrix(&rotation_part(&step));
+        let aligned = |a: &Vector3<f64>, axis: &[f64; 3]| {
+            let norm = a.norm();
+            norm > 0.0 && (a.dot(&Vector3::from(*axis)) / norm).abs() >= SLIDE_ALIGNMENT
+        };
+        match direction {
+            LooseDirection::Translation(axis) => {
+                rotation.angle() < SLIDE_ROTATION && aligned(&translation_part(&step), axis)
+            }
+            LooseDirection::Rotation(axis) => rotation.axis().is_some_and(|a| aligned(&a, axis)),
+        }
     }
 }
 
