@@ -6,7 +6,10 @@
 //!
 //! ```text
 //! bench_sequences write DIR [FRAMES] [N,N,...]   synthetic room trajectories (default 100 frames
-//!                                                 of 10000 and 50000 points) and, if
+//!                                                 of 10000 and 50000 points), FRAMES sweeps of
+//!                                                 the simulated 64-beam LiDAR driving through a
+//!                                                 street (`sie::synthetic::lidar`, about 100 000
+//!                                                 points each; the story takes 300) and, if
 //!                                                 SIE_DATA_DIR has them, the Kinect frames and
 //!                                                 the LiDAR pair, as DIR/<name>/
 //! bench_sequences run DIR [THREADS,...]          CSV on stdout (default 1,2 threads)
@@ -15,7 +18,10 @@
 //! ```
 //!
 //! A sequence folder holds `NNNN.f32` (float32 x y z per point, little-endian), `poses.txt` (one
-//! row-major T_world_sensor per line, 16 numbers) and `voxel.txt` (the map's voxel size, m).
+//! row-major T_world_sensor per line, 16 numbers) and `voxel.txt` (the map's voxel size, m). The
+//! LiDAR street's folder also holds its sweeps as `pcd/NNNN.pcd` (binary PCD, missing returns at
+//! 0 0 0 as drivers write them) and `poses_kitti.txt` (KITTI format: the top 3 rows of each
+//! T_world_sensor, 12 numbers a line), for any other program to read the same frames.
 use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -23,6 +29,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
+use sie::synthetic::lidar::{Scanner, drive};
 use sie::synthetic::room_trajectory;
 use sie::{Hooks, Point, PrepareOptions, PreparedTarget, RegistrationConfig, WarmStart, register_clouds_to};
 
@@ -301,6 +308,8 @@ fn write_sequences(dir: &Path, frames: usize, sizes: &[usize]) -> Result<(), Str
         eprintln!("room trajectory: {frames} frames of {n} points");
         write_synthetic(dir, frames, n)?;
     }
+    eprintln!("LiDAR street: {frames} sweeps of a 64-beam sensor");
+    write_lidar_street(dir, frames)?;
     let data = std::env::var_os("SIE_DATA_DIR").map_or_else(
         || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
         PathBuf::from,
@@ -342,6 +351,41 @@ fn write_synthetic(dir: &Path, frames: usize, points: usize) -> Result<(), Strin
             voxel: 0.05,
         },
     )
+}
+
+/// Seed of the simulated street and its range noise.
+const STREET_SEED: u64 = 29;
+
+fn write_lidar_street(dir: &Path, frames: usize) -> Result<(), String> {
+    let drive = drive(&Scanner::sixty_four_beams(), frames, STREET_SEED, false);
+    let sequence = Sequence {
+        name: "lidar-street".into(),
+        frames: drive.frames,
+        poses: drive.poses.iter().map(|p| p.to_homogeneous()).collect(),
+        voxel: 0.25,
+    };
+    write_sequence(dir, &sequence)?;
+    let folder = dir.join(&sequence.name);
+    let pcd = folder.join("pcd");
+    fs::create_dir_all(&pcd).map_err(|e| format!("{}: {e}", pcd.display()))?;
+    for (i, frame) in sequence.frames.iter().enumerate() {
+        sie::io::write_cloud_pcd(
+            &pcd.join(format!("{i:04}.pcd")),
+            frame,
+            None,
+            sie::io::PcdEncoding::Binary,
+        )?;
+    }
+    let kitti: String = sequence
+        .poses
+        .iter()
+        .map(|t| {
+            let rows: Vec<String> = (0..12).map(|k| format!("{:.9e}", t[(k / 4, k % 4)])).collect();
+            rows.join(" ") + "\n"
+        })
+        .collect();
+    let path = folder.join("poses_kitti.txt");
+    fs::write(&path, kitti).map_err(|e| format!("{}: {e}", path.display()))
 }
 
 fn write_sequence(dir: &Path, sequence: &Sequence) -> Result<(), String> {
