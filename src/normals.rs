@@ -35,6 +35,9 @@ const MAX_LINE_WIDENING: usize = 8;
 /// * A neighbourhood with fewer than 3 distinct points, all points on one line, or no unique
 ///   smallest eigenvalue (isotropic covariance) gives `[0, 0, 0]`, never NaN. With `k < 3`
 ///   every normal is zero.
+/// * A neighbourhood that is one scan line (middle extent under a third of the largest) whose
+///   smallest spread lies across the line of sight takes its normal from up to 8k neighbours
+///   that reach the neighbouring line of the same surface, or gets `[0, 0, 0]`.
 /// * Parallel over fixed chunks of points; the result does not depend on the thread count.
 ///
 /// # Panics
@@ -689,8 +692,8 @@ mod tests {
         assert!(normals[..1000].iter().all(|n| (dot(n, n) - 1.0).abs() < 1e-12));
     }
 
-    /// Ground rings of a spinning LiDAR 1.8 m above the ground: `rings` circles of the given
-    /// radii, a point every 0.35° of azimuth, range noise of 1 cm along each beam.
+    /// Ground rings of a spinning LiDAR 1.8 m above the ground: a circle for each of `radii`, a
+    /// point every 0.35° of azimuth, range noise of 1 cm along each beam.
     fn ground_rings(rng: &mut Xoshiro256PlusPlus, radii: &[f64]) -> Vec<Point> {
         let noise = Normal::new(0.0, 0.01).unwrap();
         let mut points = Vec::new();
