@@ -107,8 +107,8 @@ impl Scanner {
     ///
     /// `motion_during_sweep`: the sensor's motion from the first column to the end of the
     /// sweep (T_start_end), for a sweep taken while moving; column j is then measured from
-    /// `pose` moved by the share j / `columns` of it, and still written in `pose`'s frame (what
-    /// a driver without de-skewing writes).
+    /// `pose` moved by the share j / `columns` of it and written in the sensor's frame at that
+    /// moment, as a driver without de-skewing writes it: the sweep is distorted by the motion.
     pub fn sweep(
         &self,
         street: &Street,
@@ -148,8 +148,7 @@ impl Scanner {
                 }
                 let measured =
                     range + beam_offsets[beam] + noise * (self.range_noise[0] + self.range_noise[1] * range);
-                let in_column_frame = direction * measured;
-                let p = skew * nalgebra::Point3::from(in_column_frame);
+                let p = direction * measured;
                 frame[beam * self.columns + column] = [p.x, p.y, p.z];
             }
         }
@@ -553,24 +552,32 @@ mod tests {
     }
 
     #[test]
-    fn a_skewed_sweep_starts_where_the_still_one_does_and_drifts_with_the_motion() {
+    fn a_skewed_sweep_measures_each_column_from_where_the_sensor_then_is() {
         let scanner = small_scanner();
         let street = Street::generate(3, 100.0);
         let pose = at(10.0, 0.0);
-        let motion = Isometry3::translation(1.0, 0.0, 0.0);
-        let still = scanner.sweep(&street, &pose, None, 1);
-        let skewed = scanner.sweep(&street, &pose, Some(&motion), 1);
-        // Column 0 of the lowest beam is measured before any motion.
-        assert_eq!(still[0], skewed[0]);
-        // Half way round (looking back along −x), the sensor has moved 0.5 m forward: the same
-        // ground ring is met 0.5 m further forward in the first pose's frame.
-        let back = 128;
-        assert!(
-            (skewed[back][0] - still[back][0] - 0.5).abs() < 0.06,
-            "{:?} {:?}",
-            skewed[back],
-            still[back]
+        // A turning sweep: 1 m forward and 10° to the left.
+        let motion = Isometry3::from_parts(
+            Translation3::new(1.0, 0.0, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 10f64.to_radians()),
         );
+        let skewed = scanner.sweep(&street, &pose, Some(&motion), 1);
+        // Column 0 is measured before any motion; column 64 of 256 (looking left, at the fronts)
+        // a quarter along it. Each column is what a still sweep from that pose measures (the
+        // same rays, the same noise).
+        let still = scanner.sweep(&street, &pose, None, 1);
+        let quarter_way = scanner.sweep(&street, &(pose * motion_share(&motion, 0.25)), None, 1);
+        let columns = 256;
+        for beam in 0..32 {
+            assert_eq!(skewed[beam * columns], still[beam * columns], "beam {beam}");
+            assert_eq!(
+                skewed[beam * columns + 64],
+                quarter_way[beam * columns + 64],
+                "beam {beam}"
+            );
+        }
+        // And it is distorted: returns of column 64 differ from the still sweep's.
+        assert!((0..32).any(|beam| skewed[beam * columns + 64] != still[beam * columns + 64]));
     }
 
     #[test]
