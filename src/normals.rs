@@ -473,10 +473,7 @@ fn covariance(points: &[Point], selected: &[usize]) -> [[f64; 3]; 3] {
         return [[0.0; 3]; 3];
     }
     let n = selected.len() as f64;
-    let sum = selected
-        .iter()
-        .fold([0.0; 3], |s, &i| [0, 1, 2].map(|d| s[d] + points[i][d]));
-    let mean = sum.map(|s| s / n);
+    let mean = centroid(points, selected);
     // Upper triangle xx, xy, xz, yy, yz, zz.
     let mut upper = [0.0; 6];
     for &i in selected {

@@ -68,9 +68,7 @@ impl Scanner {
             beams: 64,
             columns: 2048,
             elevation_degrees: [-24.8, 2.0],
-            max_range: 120.0,
-            range_noise: [0.01, 0.0001],
-            beam_range_bias: 0.005,
+            ..Scanner::thirty_two_beams()
         }
     }
 
