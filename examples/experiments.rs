@@ -5,8 +5,9 @@
 //!
 //! ```text
 //! cargo run --release --example experiments -- [PART ...] [OPTIONS]
-//!   PART        grid | appendix | scans | figures | all (default: all), or variants
-//!               (SIE settings on the hard cells, not part of all)
+//!   PART        grid | beyond | appendix | scans | scans-one-start | figures | all (default:
+//!               all), or variants (SIE settings on the hard cells, not part of all);
+//!               scans-one-start is SIE alone on the scan table from one start
 //!   --instances N   instances per simulation cell (default 100, the paper's)
 //!   --threads N     worker threads (default: all cores)
 //!   --out DIR       CSV folder (default results)
@@ -74,6 +75,7 @@ fn run(options: &Options) -> Result<(), String> {
             "beyond" => grids::beyond_grid(options)?,
             "appendix" => grids::appendix(options)?,
             "scans" => scan_table::scan_table(options)?,
+            "scans-one-start" => scan_table::one_start_table(options)?,
             "figures" => figure_one::figure_one(options)?,
             "variants" => variant_table::variants(options)?,
             _ => unreachable!("parse_options admits no other part"),

@@ -526,7 +526,7 @@ typedef struct sie_summary {
     double significance;
     /**
      * How well the weighted inliers constrain the pose at the last update, 0..1 (the least
-     * over the most constrained direction); below 0.01 (inliers on one plane or one line, or
+     * over the most constrained direction); below 0.02 (inliers on one plane or one line, or
      * only surfaces that run along the motion) the verdict is not GOOD.
      */
     double conditioning;

@@ -53,16 +53,26 @@ pub fn parse_options() -> Result<Options, String> {
             }
             "--data" => options.data = value("--data")?.into(),
             "--method" => options.method = Some(value("--method")?),
-            "grid" | "beyond" | "appendix" | "scans" | "figures" | "variants" => options.parts.push(arg),
-            "all" => options
-                .parts
-                .extend(["grid", "beyond", "appendix", "scans", "figures"].map(String::from)),
+            "grid" | "beyond" | "appendix" | "scans" | "scans-one-start" | "figures" | "variants" => {
+                options.parts.push(arg)
+            }
+            "all" => options.parts.extend(
+                [
+                    "grid",
+                    "beyond",
+                    "appendix",
+                    "scans",
+                    "scans-one-start",
+                    "figures",
+                ]
+                .map(String::from),
+            ),
             "-h" | "--help" => {
                 println!(
                     "{}",
                     include_str!("../experiments.rs")
                         .lines()
-                        .take(18)
+                        .take(19)
                         .map(|l| l.trim_start_matches("//!"))
                         .collect::<Vec<_>>()
                         .join("\n")
@@ -73,9 +83,17 @@ pub fn parse_options() -> Result<Options, String> {
         }
     }
     if options.parts.is_empty() {
-        options
-            .parts
-            .extend(["grid", "beyond", "appendix", "scans", "figures"].map(String::from));
+        options.parts.extend(
+            [
+                "grid",
+                "beyond",
+                "appendix",
+                "scans",
+                "scans-one-start",
+                "figures",
+            ]
+            .map(String::from),
+        );
     }
     if options.instances == 0 || options.threads == 0 {
         return Err("--instances and --threads must be >= 1".into());

@@ -4,7 +4,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use sie::{Hooks, register_clouds};
+use sie::{Hooks, Starts, register_clouds};
 
 use crate::options::Options;
 use crate::progress::Progress;
@@ -13,20 +13,44 @@ use crate::scans::{self, PairCase, ScanRun};
 use crate::simulation::VerdictTally;
 
 pub fn scan_table(options: &Options) -> Result<String, String> {
+    let (cases, left_out) = load_cases(options)?;
+    let runs = run_jobs(options, &cases, None);
+    scan_csv(&options.out.join("scans.csv"), &cases, &runs)?;
+    Ok(scan_report(&cases, &runs, &left_out))
+}
+
+/// Part `scans-one-start`: SIE alone on the same pairs and starts, one start run
+/// (`Starts::InitialGuess`, as the PCL adapter and odometry run it), judged like the table.
+pub fn one_start_table(options: &Options) -> Result<String, String> {
+    let (cases, _) = load_cases(options)?;
+    let runs = run_jobs(options, &cases, Some(Starts::InitialGuess));
+    scan_csv(&options.out.join("scans-one-start.csv"), &cases, &runs)?;
+    Ok(one_start_report(&cases, &runs))
+}
+
+fn load_cases(options: &Options) -> Result<(Vec<PairCase>, Vec<scans::LeftOut>), String> {
     eprintln!("[scans] loading {}", options.data.display());
     let (mut cases, left_out) = scans::bunny_pairs(&options.data)?;
     cases.push(scans::lidar_pair(&options.data)?);
     cases.push(scans::room_pair(&options.data)?);
     cases.extend(scans::depth_pairs(&options.data)?);
-    // Jobs: every case × start × method; the large LiDAR jobs go first so the two workers
-    // finish together.
+    Ok((cases, left_out))
+}
+
+/// Every case × start × method (only SIE when `one_start` is given, run with those starts).
+fn run_jobs(options: &Options, cases: &[PairCase], one_start: Option<Starts>) -> Vec<ScanRun> {
+    let wanted = |key: &str| match one_start {
+        Some(_) => key == "sie",
+        None => options.method.as_deref().is_none_or(|k| k == key),
+    };
+    // The large LiDAR jobs go first so the two workers finish together.
     let mut jobs = Vec::new();
     let mut starts = Vec::new();
     for (c, case) in cases.iter().enumerate() {
         let case_starts = case.starts(c as u64);
         for (s, _) in case_starts.iter().enumerate() {
             for (m, method) in case.methods().iter().enumerate() {
-                if options.method.as_deref().is_none_or(|key| key == method.key) {
+                if wanted(method.key) {
                     jobs.push((c, s, m));
                 }
             }
@@ -45,7 +69,7 @@ pub fn scan_table(options: &Options) -> Result<String, String> {
                 loop {
                     let j = next.fetch_add(1, Ordering::Relaxed);
                     let Some(&(c, s, m)) = jobs.get(j) else { break };
-                    let run = run_scan(&cases[c], c, &starts[c][s], m);
+                    let run = run_scan(&cases[c], c, &starts[c][s], m, one_start);
                     let note = format!(
                         "{} {} [{}] {}: {:.3}° / {:.4} m",
                         cases[c].settings.name,
@@ -63,8 +87,7 @@ pub fn scan_table(options: &Options) -> Result<String, String> {
     });
     let mut runs = results.into_inner().expect("no worker panicked");
     runs.sort_by_key(|r| (r.case, r.start.clone(), r.method));
-    scan_csv(&options.out.join("scans.csv"), &cases, &runs)?;
-    Ok(scan_report(&cases, &runs, &left_out))
+    runs
 }
 
 fn run_scan(
@@ -72,16 +95,20 @@ fn run_scan(
     index: usize,
     start: &(String, nalgebra::Matrix4<f64>),
     method: usize,
+    one_start: Option<Starts>,
 ) -> ScanRun {
     let methods = case.methods();
-    let config = &methods[method].config;
+    let mut config = methods[method].config.clone();
+    if let Some(starts) = one_start {
+        config.starts = starts;
+    }
     let began = Instant::now();
     let result = register_clouds(
         &case.source,
         &case.target,
         None,
         Some(&start.1),
-        config,
+        &config,
         Hooks::default(),
     )
     .expect("scan input is valid");
@@ -336,5 +363,77 @@ fn scan_report(cases: &[PairCase], runs: &[ScanRun], left_out: &[scans::LeftOut]
         ));
     }
     out.push_str("\nCSV (every run, with iterations, time and SIE's σ): `results/scans.csv`.\n");
+    out
+}
+
+/// The one-start table: SIE's outcomes and verdicts per data set, and every wrong run it called
+/// GOOD.
+fn one_start_report(cases: &[PairCase], runs: &[ScanRun]) -> String {
+    let mut names: Vec<&str> = Vec::new();
+    for case in cases {
+        if !names.contains(&case.settings.name) {
+            names.push(case.settings.name);
+        }
+    }
+    let mut rows = Vec::new();
+    let mut all = VerdictTally::default();
+    for name in &names {
+        let mut tally = VerdictTally::default();
+        let set: Vec<&ScanRun> = runs
+            .iter()
+            .filter(|r| cases[r.case].settings.name == *name)
+            .collect();
+        for r in &set {
+            tally.add(r.success, r.far_off, r.called_good);
+        }
+        all.merge(&tally);
+        rows.push(vec![
+            name.to_string(),
+            format!("{}/{}", set.iter().filter(|r| r.success).count(), set.len()),
+            tally.right_good.to_string(),
+            tally.right_not_good.to_string(),
+            tally.wrong_good.to_string(),
+            tally.wrong_not_good.to_string(),
+        ]);
+    }
+    let mut out = String::from(
+        "SIE alone, `Starts::InitialGuess` (one start run, then only its half turns are tried), on the \
+         pairs and starts of the table above.\n\n",
+    );
+    out.push_str(&table(
+        &[
+            "data set",
+            "successes",
+            "right, GOOD",
+            "right, not GOOD",
+            "wrong, GOOD (false good)",
+            "wrong, not GOOD",
+        ]
+        .map(String::from),
+        &rows,
+    ));
+    out.push('\n');
+    out.push_str(&verdict_line("the real scans from one start", &all));
+    let false_good: Vec<String> = runs
+        .iter()
+        .filter(|r| r.called_good && !r.success)
+        .map(|r| {
+            let case = &cases[r.case];
+            format!(
+                "{} {} [{}]: {:.2}° / {:.3} m, conditioning {:.3}, margin {:.2}",
+                case.settings.name,
+                case.label(),
+                r.start,
+                r.rotation_degrees,
+                r.translation,
+                r.quality.conditioning,
+                r.quality.margin
+            )
+        })
+        .collect();
+    if !false_good.is_empty() {
+        out.push_str(&format!("\nWrong and GOOD: {}.\n", false_good.join("; ")));
+    }
+    out.push_str("\nCSV (every run): `results/scans-one-start.csv`.\n");
     out
 }

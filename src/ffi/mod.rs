@@ -335,7 +335,7 @@ pub struct sie_summary {
     /// large (nats; 0 when nothing stands out from chance, which makes the verdict UNSUPPORTED).
     pub significance: f64,
     /// How well the weighted inliers constrain the pose at the last update, 0..1 (the least
-    /// over the most constrained direction); below 0.01 (inliers on one plane or one line, or
+    /// over the most constrained direction); below 0.02 (inliers on one plane or one line, or
     /// only surfaces that run along the motion) the verdict is not GOOD.
     pub conditioning: f64,
     /// Fitted sigma over the typical distance between neighbouring target points (clouds; 0 for

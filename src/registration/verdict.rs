@@ -147,11 +147,12 @@ fn squared_norms(rows: &Rows, cols: usize) -> impl Iterator<Item = f64> + '_ {
 }
 
 /// [`Quality::conditioning`](crate::Quality::conditioning) below this makes the verdict
-/// DOUBTFUL: some direction of the pose rests on under a hundredth of the constraint of the
+/// DOUBTFUL: some direction of the pose rests on under a fiftieth of the constraint of the
 /// best-constrained one (inliers on one plane or one line, or only the ground and the fronts of
-/// a street, which run along the motion: a LiDAR pair held at zero motion 0.4 m off keeps 0.002;
-/// right runs on the real-scan table keep 0.036 or more).
-pub const MIN_CONDITIONING: f64 = 0.01;
+/// a street, which run along the motion: a LiDAR pair held at zero motion 0.4 m off keeps 0.002,
+/// Kinect frames 0.64 m off from one start 0.015; right runs on the real-scan
+/// table keep 0.036 or more, from one start or several).
+pub const MIN_CONDITIONING: f64 = 0.02;
 /// [`Quality::margin`](crate::Quality::margin) below this makes the verdict DOUBTFUL: a start
 /// that ended elsewhere with more than half the significance makes the result a close call.
 pub const MIN_MARGIN: f64 = 2.0;

@@ -28,7 +28,7 @@ class Summary:
     verdict says how far to trust the pose (converged only says the iterations settled): GOOD,
     DOUBTFUL or UNSUPPORTED, from significance (of the inlier cluster against chance, nats; 0:
     nothing stands out), conditioning (how well the inliers constrain the pose, 0..1; GOOD
-    needs >= 0.01), sigma_to_spacing (fitted sigma over the target points' spacing; clouds
+    needs >= 0.02), sigma_to_spacing (fitted sigma over the target points' spacing; clouds
     only, GOOD needs <= 1) and margin (significance over runner_up_significance, that of the
     best start that ended at another pose; GOOD needs >= 2; 0 when no start ended elsewhere).
     start, starts_run, agreeing_starts and hypotheses describe the search (Starts.AUTOMATIC).
