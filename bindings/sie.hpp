@@ -119,6 +119,7 @@ enum class StartKind : std::uint32_t {
     Hypothesis = SIE_START_KIND_HYPOTHESIS,
     WarmStart = SIE_START_KIND_WARM_START,
     HalfTurn = SIE_START_KIND_HALF_TURN,
+    PeriodShift = SIE_START_KIND_PERIOD_SHIFT,
 };
 
 enum class StopReason : std::uint32_t {
@@ -183,6 +184,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "warm start";
     case StartKind::HalfTurn:
         return "half turn";
+    case StartKind::PeriodShift:
+        return "period shift";
     }
     return "unknown";
 }

@@ -387,6 +387,11 @@ enum sie_start_kind
      * near-symmetric scene's rival pose), then SIE (clouds).
      */
     SIE_START_KIND_HALF_TURN = 5,
+    /**
+     * Another start's result shifted by one period of structure its inliers repeat (a row of
+     * pillars: a rival pose), then SIE (clouds).
+     */
+    SIE_START_KIND_PERIOD_SHIFT = 6,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L

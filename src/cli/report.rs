@@ -246,6 +246,7 @@ pub fn search_row(result: &RegistrationResult) -> SearchRow {
             StartKind::Hypothesis => "hypothesis",
             StartKind::WarmStart => "warm_start",
             StartKind::HalfTurn => "half_turn",
+            StartKind::PeriodShift => "period_shift",
         },
         starts_run: search.starts_run,
         hypotheses: search.hypotheses,

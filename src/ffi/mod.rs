@@ -238,6 +238,9 @@ pub enum sie_start_kind {
     /// Another start's result turned half a turn about one of its inliers' principal axes (a
     /// near-symmetric scene's rival pose), then SIE (clouds).
     HalfTurn = 5,
+    /// Another start's result shifted by one period of structure its inliers repeat (a row of
+    /// pillars: a rival pose), then SIE (clouds).
+    PeriodShift = 6,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).

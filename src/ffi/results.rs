@@ -48,6 +48,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StartKind::Hypothesis => sie_start_kind::Hypothesis,
         StartKind::WarmStart => sie_start_kind::WarmStart,
         StartKind::HalfTurn => sie_start_kind::HalfTurn,
+        StartKind::PeriodShift => sie_start_kind::PeriodShift,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

@@ -15,7 +15,7 @@ use super::input::{
 use super::irls::{RunPlan, searches_starts};
 use super::problem::CloudProblem;
 use super::result::{RegistrationResult, StartKind};
-use super::search::{BestOfStarts, challenge_with_half_turns, register_from_starts, run_on_clouds};
+use super::search::{BestOfStarts, challenge_with_rivals, register_from_starts, run_on_clouds};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::verdict::{Evidence, judged_alone};
 use super::warm::{WarmRun, run_warm};
@@ -299,7 +299,7 @@ fn register_cloud_problem(
         evidence.widen_around(problem, &result);
         let mut best = BestOfStarts::new(evidence);
         if best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
-            challenge_with_half_turns(problem, &mut best, &cold, observer);
+            challenge_with_rivals(problem, &mut best, &cold, observer);
         }
         best.finish(problem)
     } else {

@@ -42,6 +42,9 @@ pub enum StartKind {
     /// The result of another start turned half a turn about one of its inliers' principal axes
     /// (a near-symmetric scene's rival pose, `search::half_turns`), then SIE (ICP).
     HalfTurn,
+    /// The result of another start shifted by one period of structure its inliers repeat
+    /// (a row of pillars, `search::period_shifts`), then SIE (ICP).
+    PeriodShift,
 }
 
 /// One IRLS iteration, for plotting convergence.

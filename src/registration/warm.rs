@@ -7,7 +7,7 @@ use super::hooks::Observer;
 use super::irls::RunPlan;
 use super::problem::{CloudProblem, Problem, moved_apart};
 use super::result::{RegistrationResult, StartKind, StopReason};
-use super::search::{BestOfStarts, challenge_with_half_turns, run_on_clouds};
+use super::search::{BestOfStarts, challenge_with_rivals, run_on_clouds};
 use super::verdict::{Evidence, judged_alone};
 use crate::sie::WarmStart;
 use crate::sie::schedule::WARM_BETA_WIDTHS;
@@ -58,10 +58,11 @@ pub(crate) fn run_warm(
         return WarmRun::Kept(result);
     }
     if warm_model_held(warm, &result, moved) {
-        // As a cold single start: judged against its near misses, challenged by its half turns.
+        // As a cold single start: judged against its near misses, challenged by its rivals
+        // (half turns, period shifts).
         let mut best = BestOfStarts::new(Evidence::around(problem, &result));
         if best.offer(problem, result, Some(pending), StartKind::WarmStart) {
-            challenge_with_half_turns(problem, &mut best, &plan.cold(), observer);
+            challenge_with_rivals(problem, &mut best, &plan.cold(), observer);
         }
         return WarmRun::Kept(best.finish(problem));
     }

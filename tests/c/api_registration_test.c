@@ -16,7 +16,8 @@ static void check_quality(const sie_summary *s, int correspondences, const char 
            s->starts_run, s->agreeing_starts, s->hypotheses, s->runner_up_significance);
     CHECK(s->verdict == SIE_VERDICT_GOOD || s->verdict == SIE_VERDICT_DOUBTFUL ||
           s->verdict == SIE_VERDICT_UNSUPPORTED);
-    CHECK(s->start <= SIE_START_KIND_HYPOTHESIS || s->start == SIE_START_KIND_HALF_TURN);
+    CHECK(s->start <= SIE_START_KIND_HYPOTHESIS || s->start == SIE_START_KIND_HALF_TURN ||
+          s->start == SIE_START_KIND_PERIOD_SHIFT);
     CHECK(finite_non_negative(s->significance) && finite_non_negative(s->conditioning) &&
           finite_non_negative(s->sigma_to_spacing) && finite_non_negative(s->margin) &&
           finite_non_negative(s->runner_up_significance));

@@ -92,6 +92,7 @@ class StartKind(_NamedEnum):
     HYPOTHESIS = 3
     WARM_START = 4
     HALF_TURN = 5  # a near-symmetric scene's rival pose (another start turned half a turn)
+    PERIOD_SHIFT = 6  # a repeating scene's rival pose (another start shifted by one period)
 
 
 class Cloud(_NamedEnum):

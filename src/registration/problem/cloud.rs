@@ -656,6 +656,10 @@ impl Problem for CloudProblem<'_> {
         Some(conditioning)
     }
 
+    fn surface_rows(&self) -> &[SurfaceRow] {
+        &self.surfaces
+    }
+
     /// Visits the evaluation pass's matches in the order and with the filter of `fill_rows`,
     /// so row i is the i-th match visited. Rows are correlated by the cells of their targets;
     /// point-to-point's response to the pose comes from the surfaces' sample.

@@ -14,6 +14,7 @@ use crate::median::median;
 use crate::noise::combine;
 use crate::point::Point;
 use crate::registration::covariance::{PoseUncertainty, RowWeight};
+use crate::registration::degeneracy::SurfaceRow;
 pub(crate) use cloud::CloudProblem;
 pub(crate) use pairs::CorrespondenceProblem;
 
@@ -171,6 +172,11 @@ pub(crate) trait Problem {
         _probabilities: &[f64],
     ) -> Option<PlaneConditioning> {
         None
+    }
+    /// The surface sample the last `surface_conditioning` drew (inliers with their targets'
+    /// normals, moved into the target frame); empty without surfaces.
+    fn surface_rows(&self) -> &[SurfaceRow] {
+        &[]
     }
     /// The pose's uncertainty at `transform` from the rows of the last `evaluate_all` there,
     /// one inlier probability per row, and the final model's `weight` (`covariance`); ICP's

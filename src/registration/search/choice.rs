@@ -15,6 +15,7 @@ use nalgebra::{Matrix4, Rotation3, Vector3};
 
 use crate::geometry::{LooseDirection, rotation_part, translation_part};
 
+use crate::registration::degeneracy::SurfaceRow;
 use crate::registration::irls::{FinalModel, PendingPerPoint};
 use crate::registration::problem::{Problem, moved_apart};
 use crate::registration::result::{RegistrationResult, StartKind, StopReason, TraceEntry};
@@ -68,6 +69,8 @@ struct Best {
     model: Option<FinalModel>,
     /// Its per-point results were dropped while later starts ran (see `BestOfStarts::park`).
     parked: bool,
+    /// The surface sample at its pose (`Problem::surface_rows`), where its repeats are sought.
+    surfaces: Vec<SurfaceRow>,
 }
 
 impl BestOfStarts {
@@ -153,15 +156,22 @@ impl BestOfStarts {
         };
         if cancelled || replaces {
             self.best = None;
+            let surfaces = problem.surface_rows().to_vec();
             let model = pending.map(|pending| pending.spread_last(problem, &mut result));
             self.best = Some(Best {
                 significance,
                 result,
                 model,
                 parked: false,
+                surfaces,
             });
         }
         !cancelled
+    }
+
+    /// The surface sample at the best result's pose (empty if no start ran).
+    pub(crate) fn best_surfaces(&self) -> &[SurfaceRow] {
+        self.best.as_ref().map_or(&[], |best| &best.surfaces)
     }
 
     /// The best result's transform and fitted σ (RMS over the histograms), if a start ran.

@@ -12,10 +12,11 @@
 //! docs/performance.md ("Design measurements behind the code") has what each start wins on the
 //! real scans.
 
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Translation3};
 
 use super::choice::BestOfStarts;
 use super::half_turns::{HalfTurns, SETTLE_UPDATES};
+use super::period_shifts::period_shifts;
 use crate::registration::hooks::Observer;
 use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending, settle};
 use crate::registration::problem::{CloudProblem, Problem, moved_apart};
@@ -160,14 +161,16 @@ pub(crate) fn register_from_starts(
             break;
         }
     }
-    challenge_with_half_turns(problem, &mut best, plan, observer);
+    challenge_with_rivals(problem, &mut best, plan, observer);
     best.finish(problem)
 }
 
-/// Runs SIE by `plan` from each half turn of the best result so far that stays a rival once
-/// settled (`half_turns`), offered as another start: a better rival wins, one nearly as good
-/// lowers the margin.
-pub(crate) fn challenge_with_half_turns(
+/// Runs SIE by `plan` from each rival pose of the best result so far that stays a rival once
+/// settled, offered as another start: a better rival wins, one nearly as good lowers the
+/// margin. The rivals are its half turns (`half_turns`) and its shifts by a period of
+/// structure its inliers repeat (`period_shifts`, screened as shifted: they need no settling
+/// to come near).
+pub(crate) fn challenge_with_rivals(
     problem: &mut CloudProblem<'_>,
     best: &mut BestOfStarts,
     plan: &RunPlan,
@@ -177,29 +180,34 @@ pub(crate) fn challenge_with_half_turns(
         return;
     };
     let turns = HalfTurns::of(problem, &best.evidence, &transform, sigma);
+    let shifts: Vec<Matrix4<f64>> = period_shifts(best.best_surfaces())
+        .into_iter()
+        .map(|shift| Translation3::from(shift).to_homogeneous() * transform)
+        .filter(|shifted| turns.rivals(problem, &best.evidence, shifted))
+        .collect();
+    let rivals = turns
+        .poses
+        .iter()
+        .map(|pose| (*pose, StartKind::HalfTurn))
+        .chain(shifts.into_iter().map(|pose| (pose, StartKind::PeriodShift)));
     let settling = plan.settling(SETTLE_UPDATES);
     // What the rivals are counted against, once one is run: the best's inliers among every row.
     let mut best_inliers = None;
-    for turned in &turns.poses {
-        let settled = settle(problem, *turned, &settling);
+    for (rival, kind) in rivals {
+        let settled = settle(problem, rival, &settling);
         if !turns.rivals(problem, &best.evidence, &settled) {
             continue;
         }
         let own = *best_inliers.get_or_insert_with(|| turns.inliers_at(problem, &transform, sigma));
         best.park();
-        let (result, pending) = run_on_clouds(
-            problem,
-            *turned,
-            best.next_iteration,
-            plan,
-            observer.as_deref_mut(),
-        );
+        let (result, pending) =
+            run_on_clouds(problem, rival, best.next_iteration, plan, observer.as_deref_mut());
         // The rows are the rival's final evaluation: every row, as `own` counted.
         if result.stop_reason != StopReason::Cancelled && !turns.nearly_as_good(problem, sigma, own) {
             best.pass_over(result);
             continue;
         }
-        if !best.offer(problem, result, Some(pending), StartKind::HalfTurn) {
+        if !best.offer(problem, result, Some(pending), kind) {
             return;
         }
     }

@@ -14,7 +14,8 @@ mod cloud_starts;
 mod half_turns;
 mod hypotheses;
 mod pair_starts;
+mod period_shifts;
 
 pub(crate) use choice::BestOfStarts;
-pub(crate) use cloud_starts::{challenge_with_half_turns, register_from_starts, run_on_clouds};
+pub(crate) use cloud_starts::{challenge_with_rivals, register_from_starts, run_on_clouds};
 pub(crate) use pair_starts::{register_from_guess, register_from_hypotheses};
