@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 
 use super::irls::resolution;
 use super::problem::{CloudProblem, Problem, Rows};
-use super::result::{RegistrationResult, StopReason, Verdict};
+use super::result::{Quality, RegistrationResult, StopReason, Verdict};
 use super::significance::{self, Background, BinnedSignificance};
 
 /// What a result is judged by: the background of its significance, and (ICP) the typical
@@ -159,7 +159,11 @@ pub const MIN_MARGIN: f64 = 2.0;
 
 /// The verdict from the evidence in `result.quality` and the fitted histograms.
 pub(crate) fn verdict(result: &RegistrationResult) -> Verdict {
-    let quality = &result.quality;
+    verdict_with(result, &result.quality)
+}
+
+/// The verdict `result` would get with this quality evidence.
+pub(crate) fn verdict_with(result: &RegistrationResult, quality: &Quality) -> Verdict {
     // NaN counts as no support.
     if quality.significance.is_nan() || quality.significance <= 0.0 {
         return Verdict::Unsupported;

@@ -18,8 +18,8 @@ use crate::geometry::{LooseDirection, rotation_part, translation_part};
 use crate::registration::degeneracy::SurfaceRow;
 use crate::registration::irls::{FinalModel, PendingPerPoint};
 use crate::registration::problem::{Problem, moved_apart};
-use crate::registration::result::{RegistrationResult, StartKind, StopReason, TraceEntry};
-use crate::registration::verdict::{Evidence, MIN_CONDITIONING, MIN_MARGIN, verdict};
+use crate::registration::result::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
+use crate::registration::verdict::{Evidence, MIN_CONDITIONING, MIN_MARGIN, verdict, verdict_with};
 
 /// The most significant result of SIE from several starts on one problem, each judged on
 /// every row at the scale its own fit claims (`significance::at_scale`).
@@ -179,6 +179,16 @@ impl BestOfStarts {
         self.best
             .as_ref()
             .map(|best| (best.result.transform, best.result.sigma_rms()))
+    }
+
+    /// Whether the best result so far is GOOD on its own evidence, with no other start to
+    /// compare it with.
+    pub(crate) fn best_is_good_alone(&self) -> bool {
+        self.best.as_ref().is_some_and(|best| {
+            let mut quality = best.result.quality;
+            quality.margin = f64::INFINITY;
+            verdict_with(&best.result, &quality) == Verdict::Good
+        })
     }
 
     /// Counts a start that is no rival to the best (`half_turns`): its updates are numbered

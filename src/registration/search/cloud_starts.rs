@@ -142,9 +142,8 @@ pub(crate) fn register_from_starts(
         );
         // Only a converged run can show the guess was right (one stopped at the cap while β was
         // still wide has not looked closely yet).
-        let stayed = kind == StartKind::InitialGuess
-            && result.stop_reason == StopReason::Converged
-            && stayed_near(problem, &init, &result);
+        let moved = (kind == StartKind::InitialGuess && result.stop_reason == StopReason::Converged)
+            .then(|| moved_in_widths(problem, &init, &result));
         // A guess near the right pose has residuals that are mostly inliers, not the background
         // a wrong pose would show (judged against them alone, the right pose of every frame of a
         // 100-frame odometry run from constant-velocity guesses was UNSUPPORTED). The first
@@ -157,6 +156,9 @@ pub(crate) fn register_from_starts(
         if !best.offer(problem, result, Some(pending), kind) {
             return best.finish(problem);
         }
+        let stayed = moved.is_some_and(|moved| {
+            moved <= STAYED_SIGMAS || (moved <= REACHED_SIGMAS && best.best_is_good_alone())
+        });
         if stayed {
             break;
         }
@@ -213,15 +215,18 @@ pub(crate) fn challenge_with_rivals(
     }
 }
 
-/// The initial guess was already right to within the noise: the paper's start (the widest β)
-/// moved the source points by at most `STAYED_SIGMAS`·σ RMS. Narrower starts from the same
-/// guess cannot be pulled elsewhere by data that did not pull the widest one (a sequence's
-/// constant-velocity guess is the common case: one start, the paper's cost).
-fn stayed_near(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> bool {
+/// How far the paper's start (the widest β) moved the source points from the initial guess, in
+/// fitted σ (RMS). Within `STAYED_SIGMAS` the guess was already right to within the noise:
+/// narrower starts from the same guess cannot be pulled elsewhere by data that did not pull the
+/// widest one. Within `REACHED_SIGMAS`, a result GOOD on its own evidence (no other start to
+/// compare with) ends the search too: a sequence's constant-velocity guess, off by the
+/// acceleration, is the common case (one start, the paper's cost).
+fn moved_in_widths(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> f64 {
     let typical_scale = problem.rows().scale.median();
-    let moved = moved_apart(problem.probe_points(), init, &result.transform) / typical_scale;
-    moved <= STAYED_SIGMAS * result.sigma_rms()
+    moved_apart(problem.probe_points(), init, &result.transform) / (typical_scale * result.sigma_rms())
 }
 
-/// See [`stayed_near`].
+/// See [`moved_in_widths`].
 const STAYED_SIGMAS: f64 = 3.0;
+/// See [`moved_in_widths`]: the near-miss distance of `Evidence::around`.
+const REACHED_SIGMAS: f64 = 10.0;
