@@ -397,7 +397,7 @@ fn one_start_report(cases: &[PairCase], runs: &[ScanRun]) -> String {
         ]);
     }
     let mut out = String::from(
-        "SIE alone, `Starts::InitialGuess` (one start run, then only its half turns are tried), on the \
+        "SIE alone, `Starts::InitialGuess` (one start run, then only its half turns and period shifts are tried), on the \
          pairs and starts of the table above.\n\n",
     );
     out.push_str(&table(

@@ -5,7 +5,8 @@
 //! the result's inliers turned half a turn about each of their principal axes through their
 //! centroid. Each is screened on the evidence subset by its scale-free significance; one that
 //! comes near the result's is refined by SIE and offered as another start, so that a better
-//! rival wins and one nearly as good makes the result a close call (its margin).
+//! rival wins and one nearly as good makes the result a close call (its margin). The same
+//! screens and count judge the result's period shifts (`period_shifts`).
 
 use nalgebra::{Matrix3, Matrix4, SymmetricEigen, Vector3};
 
