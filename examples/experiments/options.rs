@@ -1,6 +1,16 @@
 //! The command line: parts to run and options.
 use std::path::PathBuf;
 
+/// The parts `all` (and no part named) runs; `variants` runs only when named.
+const ALL_PARTS: [&str; 6] = [
+    "grid",
+    "beyond",
+    "appendix",
+    "scans",
+    "scans-one-start",
+    "figures",
+];
+
 pub struct Options {
     pub parts: Vec<String>,
     pub instances: usize,
@@ -56,17 +66,7 @@ pub fn parse_options() -> Result<Options, String> {
             "grid" | "beyond" | "appendix" | "scans" | "scans-one-start" | "figures" | "variants" => {
                 options.parts.push(arg)
             }
-            "all" => options.parts.extend(
-                [
-                    "grid",
-                    "beyond",
-                    "appendix",
-                    "scans",
-                    "scans-one-start",
-                    "figures",
-                ]
-                .map(String::from),
-            ),
+            "all" => options.parts.extend(ALL_PARTS.map(String::from)),
             "-h" | "--help" => {
                 println!(
                     "{}",
@@ -83,17 +83,7 @@ pub fn parse_options() -> Result<Options, String> {
         }
     }
     if options.parts.is_empty() {
-        options.parts.extend(
-            [
-                "grid",
-                "beyond",
-                "appendix",
-                "scans",
-                "scans-one-start",
-                "figures",
-            ]
-            .map(String::from),
-        );
+        options.parts.extend(ALL_PARTS.map(String::from));
     }
     if options.instances == 0 || options.threads == 0 {
         return Err("--instances and --threads must be >= 1".into());
