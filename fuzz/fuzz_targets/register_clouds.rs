@@ -56,9 +56,10 @@ fuzz_target!(|data: &[u8]| {
                 assert!(summary.inlier_fraction.is_finite() && summary.rmse.is_finite());
                 // The verdict, its evidence and the search: valid codes, never NaN or inf.
                 assert!((1..=3).contains(&summary.verdict), "{summary:?}");
-                // ICP: the initial guess, a narrow β₀, a scale-free lead or a half turn (no warm start here).
+                // ICP: the initial guess, a narrow β₀, a scale-free lead, a half turn or a period
+                // shift (no warm start here).
                 assert!(
-                    matches!(summary.start, 0 | 1 | 2 | 5) && summary.starts_run >= 1,
+                    matches!(summary.start, 0 | 1 | 2 | 5 | 6) && summary.starts_run >= 1,
                     "{summary:?}"
                 );
                 assert!(
