@@ -324,16 +324,22 @@ fn assert_never_good_when_wrong(
     }
 }
 
-/// A 4 m wide floor between `from` and `to` along x with pillars (radius 0.1 m, 2 m high) at
-/// x = 0, 1, …, 5 m where they fall inside: repeated structure with a period of 1 m.
-fn floor_with_pillars(rng: &mut Rng, from: f64, to: f64) -> Vec<Point> {
-    let mut points = rectangle(
+/// A 4 m wide floor between `from` and `to` along x, 400 points per square metre.
+fn floor(rng: &mut Rng, from: f64, to: f64) -> Vec<Point> {
+    let count = (400.0 * 4.0 * (to - from)) as usize;
+    rectangle(
         rng,
         [from, -2.0, 0.0],
         [to - from, 0.0, 0.0],
         [0.0, 4.0, 0.0],
-        (400.0 * 4.0 * (to - from)) as usize,
-    );
+        count,
+    )
+}
+
+/// A 4 m wide floor between `from` and `to` along x with pillars (radius 0.1 m, 2 m high) at
+/// x = 0, 1, …, 5 m where they fall inside: repeated structure with a period of 1 m.
+fn floor_with_pillars(rng: &mut Rng, from: f64, to: f64) -> Vec<Point> {
+    let mut points = floor(rng, from, to);
     let noise = Normal::new(0.0, NOISE).unwrap();
     for x in (0..6).map(f64::from).filter(|x| (from..=to).contains(x)) {
         for _ in 0..800 {
@@ -367,13 +373,7 @@ fn a_row_of_pillars_one_period_off_is_never_good() {
 /// A 4 m wide floor between `from` and `to` along x with 0.6 m square boxes (1 m high) centred
 /// at x = 0, 1, …, 5 m where they fall inside, about 400 points per square metre.
 fn floor_with_boxes(rng: &mut Rng, from: f64, to: f64) -> Vec<Point> {
-    let mut points = rectangle(
-        rng,
-        [from, -2.0, 0.0],
-        [to - from, 0.0, 0.0],
-        [0.0, 4.0, 0.0],
-        (400.0 * 4.0 * (to - from)) as usize,
-    );
+    let mut points = floor(rng, from, to);
     for x in (0..6).map(f64::from).filter(|x| (from..=to).contains(x)) {
         let (low, high) = (x - 0.3, x + 0.3);
         for (corner, side) in [
