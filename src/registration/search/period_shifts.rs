@@ -3,9 +3,9 @@
 //! a shift stays there, every element matched to its neighbour, and a single start has nothing
 //! to compare that with. The shifts are found in the result's own surface sample (its inliers
 //! with their targets' normals): along each principal axis of the sample, pairs of points on
-//! surfaces facing that axis, with the same normal and side by side across it, vote for the
-//! distance between them. Pairs on one face vote for zero; a period collects nearly as many
-//! votes (all but one element's faces have a partner one period on). Surfaces running along the
+//! surfaces facing that axis, with parallel normals and side by side across it, vote for the
+//! distance between them. Pairs on one face vote for zero; a period collects as many votes or
+//! more (every element's faces but the last have partners one period on). Surfaces running along the
 //! axis (the floor, the walls beside the row) slide onto themselves under any shift and do not
 //! vote. Each shift is then screened and refined like a half turn (`half_turns`).
 
