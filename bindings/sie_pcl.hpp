@@ -130,15 +130,17 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  * (pcl::registration::IncrementalRegistration, ELCH, your own pipeline).
  *
  * What PCL's settings mean here:
- * - One run from the guess, as PCL's ICP: the context is set to sie::Starts::InitialGuess on
+ * - One run from the guess, as PCL's ICP (and a second from its result when the first ended
+ *   more than 10 fitted sigma from the guess): the context is set to sie::Starts::InitialGuess on
  *   construction, so the updates, the visualisation callback, the increments and the criteria
- *   below are those of one run. context().set_starts(sie::Starts::Automatic) runs SIE from
+ *   below are those of one run (a second run's updates follow in order; it has its own cap, as
+ *   every start does). context().set_starts(sie::Starts::Automatic) runs SIE from
  *   several starts instead (the updates of every start are then reported in order, and the
  *   iteration cap holds per start).
  * - Sequences (odometry, scan-to-map): after each align(), context().set_warm_start(summary())
  *   starts the next one from this frame's noise model (~60 % of the updates; sie falls
  *   back to the full schedule by itself when the guess was bad).
- * - setMaximumIterations(n): caps sie's updates at n. The default is sie's 200, not PCL's 10:
+ * - setMaximumIterations(n): caps each run's updates at n. The default is sie's 200, not PCL's 10:
  *   SIE anneals its noise model over typically 30-60 updates.
  * - hasConverged(): the C summary's `converged` (sie stopped by its own criteria), or the
  *   Euclidean fitness criterion below was met. A run that reached the iteration cap has not

@@ -264,7 +264,9 @@ enum sie_starts
      */
     SIE_STARTS_AUTOMATIC = 0,
     /**
-     * One run from the initial guess: the paper's method as published.
+     * One run from the initial guess: the paper's method as published. A run that ends more
+     * than 10 fitted sigma from the guess is run once more from its result and the more
+     * significant of the two kept (a pose the method does not return to is no answer).
      */
     SIE_STARTS_INITIAL_GUESS = 1,
 };

@@ -190,7 +190,8 @@ fn trace_prints_one_row_per_iteration() {
         "the result is none of the {} updates",
         trace.len()
     );
-    // From the initial guess alone the last row is the result.
+    // From the initial guess alone the last row is the result (the run travelled, so it ran again
+    // from its result, stayed, and that second run is kept).
     let output = sie(&[
         "register",
         arg(&b.source),
@@ -203,7 +204,8 @@ fn trace_prints_one_row_per_iteration() {
     ]);
     assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
     let report = json(&output);
-    assert_eq!(report["search"]["starts_run"], 1);
+    assert_eq!(report["search"]["starts_run"], 2);
+    assert_eq!(report["search"]["agreeing_starts"], 2);
     let trace = report["trace"].as_array().unwrap();
     assert_eq!(report["iterations"].as_u64().unwrap() as usize, trace.len());
     let last = trace.last().unwrap();

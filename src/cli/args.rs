@@ -91,7 +91,8 @@ pub struct RegisterArgs {
     pub beta_shrink: f64,
     /// Where SIE starts: `automatic` runs SIE from the initial guess with the paper's β₀, with a
     /// narrow β₀ and after a scale-free (L1) lead, and keeps the most significant result;
-    /// `initial-guess` runs the paper's method once (faster; for good guesses, e.g. odometry).
+    /// `initial-guess` runs the paper's method from the guess (faster; for good guesses, e.g.
+    /// odometry), and once more from its result when it ended more than 10σ from the guess.
     #[arg(long, value_enum, default_value_t = StartsArg::Automatic, help_heading = "Method")]
     pub starts: StartsArg,
 

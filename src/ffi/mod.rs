@@ -194,7 +194,9 @@ pub enum sie_starts {
     /// lead. Applies to the SIE cost with the automatic initial beta; baseline costs and a
     /// fixed initial beta (`sie_context_set_regularizer`) run once from the initial guess.
     Automatic = 0,
-    /// One run from the initial guess: the paper's method as published.
+    /// One run from the initial guess: the paper's method as published. A run that ends more
+    /// than 10 fitted sigma from the guess is run once more from its result and the more
+    /// significant of the two kept (a pose the method does not return to is no answer).
     InitialGuess = 1,
 }
 

@@ -14,8 +14,8 @@ use super::input::{
 };
 use super::irls::{RunPlan, searches_starts};
 use super::problem::CloudProblem;
-use super::result::{RegistrationResult, StartKind};
-use super::search::{BestOfStarts, challenge_with_rivals, register_from_starts, run_on_clouds};
+use super::result::RegistrationResult;
+use super::search::{register_from_starts, register_one_start, run_on_clouds};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::verdict::{Evidence, judged_alone};
 use super::warm::{WarmRun, run_warm};
@@ -293,15 +293,7 @@ fn register_cloud_problem(
     let mut result = if searches_starts(config) {
         register_from_starts(problem, init, first_iteration, &cold, observer)
     } else if cold.is_sie() {
-        let mut evidence = Evidence::of_clouds(problem, &init);
-        let (result, pending) = run_on_clouds(problem, init, first_iteration, &cold, observer.as_deref_mut());
-        // As for the first of several starts (`register_from_starts`), rows left at the result.
-        evidence.widen_around(problem, &result);
-        let mut best = BestOfStarts::new(evidence);
-        if best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
-            challenge_with_rivals(problem, &mut best, &cold, observer);
-        }
-        best.finish(problem)
+        register_one_start(problem, init, first_iteration, &cold, observer)
     } else {
         // A baseline: no σ to widen the background by, nor to screen rivals at.
         let evidence = Evidence::of_clouds(problem, &init);

@@ -26,7 +26,10 @@ pub enum Starts {
     /// `max_iterations` updates.
     #[default]
     Automatic,
-    /// Only the initial guess (the paper's method as published).
+    /// Only the initial guess (the paper's method as published). A run that ends more than 10
+    /// fitted σ from the guess is run once more from its result and the more significant of
+    /// the two is kept: a pose the method does not return to is no answer (one start's wrong
+    /// poses, such as a flipped low-overlap scan, are left that way).
     InitialGuess,
 }
 

@@ -71,7 +71,7 @@ class Starts(_NamedEnum):
     """Where SIE starts (Context.set_starts / starts=...)."""
 
     AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
-    INITIAL_GUESS = 1  # one run from the initial guess (the paper's method)
+    INITIAL_GUESS = 1  # the paper's method from the guess (again from its result if it went > 10 sigma)
 
 
 class Verdict(_NamedEnum):

@@ -168,12 +168,13 @@ def test_numpy_style_validation(clouds):
 def test_progress_carries_the_transform_and_the_summary_inlier_fraction(clouds):
     source, target, _ = clouds
     # From the initial guess alone the last update's transform is the result: a viewer moving
-    # the cloud with each one ends there.
+    # the cloud with each one ends there (the run from the result, which stayed, is last).
     seen = []
     ctx = sie.Context(trace=True, starts=sie.Starts.INITIAL_GUESS)
     ctx.set_progress_callback(seen.append)
     result = ctx.align(source, target)
-    assert len(seen) == result.summary.iterations and result.summary.starts_run == 1
+    assert len(seen) == result.summary.iterations and result.summary.starts_run == 2
+    assert result.summary.agreeing_starts == 2
     assert all(e.transform.shape == (4, 4) and np.array_equal(e.transform[3], [0, 0, 0, 1]) for e in seen)
     np.testing.assert_array_equal(seen[-1].transform, result.transform)
     assert not np.allclose(seen[0].transform, np.eye(4))  # the first update already moved

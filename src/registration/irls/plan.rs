@@ -135,6 +135,21 @@ impl RunPlan {
         }
     }
 
+    /// Whether the run is SIE from the paper's β₀ (the RMS of the residuals at its start), not
+    /// from a β₀ the caller or a warm start fixed.
+    pub(crate) fn starts_at_residual_rms(&self) -> bool {
+        matches!(
+            self.cost,
+            RunCost::Sie {
+                beta: BetaSchedule {
+                    start: BetaStart::ResidualRms,
+                    ..
+                },
+                ..
+            }
+        )
+    }
+
     /// Whether the run weighs with SIE.
     pub(crate) fn is_sie(&self) -> bool {
         matches!(self.cost, RunCost::Sie { .. })

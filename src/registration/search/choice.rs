@@ -61,6 +61,15 @@ impl End {
     }
 }
 
+/// Which of two starts that end at the same pose is kept.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SamePose {
+    /// The earlier (unless the later is clearly more significant): near-ties are rounding.
+    KeepEarlier,
+    /// The later: a run from the earlier one's pose that stayed.
+    TakeLater,
+}
+
 /// The best start so far.
 struct Best {
     significance: f64,
@@ -93,9 +102,37 @@ impl BestOfStarts {
     pub(crate) fn offer(
         &mut self,
         problem: &mut dyn Problem,
+        result: RegistrationResult,
+        pending: Option<PendingPerPoint>,
+        start: StartKind,
+    ) -> bool {
+        self.offer_with(problem, result, pending, start, SamePose::KeepEarlier)
+    }
+
+    /// As `offer`, for a run of the paper's method from the best result's own pose: it
+    /// replaces the best when it ends at the same pose (the later run is the one that stayed).
+    pub(crate) fn offer_rerun(
+        &mut self,
+        problem: &mut dyn Problem,
+        result: RegistrationResult,
+        pending: PendingPerPoint,
+    ) -> bool {
+        self.offer_with(
+            problem,
+            result,
+            Some(pending),
+            StartKind::InitialGuess,
+            SamePose::TakeLater,
+        )
+    }
+
+    fn offer_with(
+        &mut self,
+        problem: &mut dyn Problem,
         mut result: RegistrationResult,
         pending: Option<PendingPerPoint>,
         start: StartKind,
+        same_pose: SamePose,
     ) -> bool {
         self.starts_run += 1;
         self.next_iteration = result.iterations + 1;
@@ -122,6 +159,11 @@ impl BestOfStarts {
         // and the earlier start (the paper's) is kept.
         let replaces = match &self.best {
             None => true,
+            Some(Best { result: best, .. })
+                if same_pose == SamePose::TakeLater && self.last_end_at(&*problem, &best.transform) =>
+            {
+                true
+            }
             Some(Best {
                 significance: best_significance,
                 result: best,
@@ -167,6 +209,21 @@ impl BestOfStarts {
             });
         }
         !cancelled
+    }
+
+    /// Whether the last start ended at `pose` (an earlier start's end), as `finish` counts
+    /// agreeing starts.
+    fn last_end_at(&self, problem: &dyn Problem, pose: &Matrix4<f64>) -> bool {
+        let Some(last) = self.ends.last() else {
+            return false;
+        };
+        let earlier = self
+            .ends
+            .iter()
+            .find(|end| end.transform == *pose)
+            .unwrap_or(last);
+        moved_apart(problem.probe_points(), pose, &last.transform) / self.typical_scale
+            <= last.same_pose_within(earlier)
     }
 
     /// The surface sample at the best result's pose (empty if no start ran).

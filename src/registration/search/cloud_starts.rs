@@ -167,6 +167,45 @@ pub(crate) fn register_from_starts(
     best.finish(problem)
 }
 
+/// One start of SIE from `init` (the single-start setting), confirmed when it travelled: a
+/// result more than `REACHED_SIGMAS` from its guess has not shown that the paper's run, started
+/// at it, stays there (at a wrong pose with few inliers the wide first levels, which weigh the
+/// rest of the overlap, pull it away; at a right one they fit it again). The run from the result
+/// is offered as another start, and replaces the first when it ends at the same pose (the last
+/// update is then the result, as with one run). Then the rivals challenge the best. A β₀ the
+/// caller fixed runs once.
+pub(crate) fn register_one_start(
+    problem: &mut CloudProblem<'_>,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    plan: &RunPlan,
+    mut observer: Option<&mut Observer<'_>>,
+) -> RegistrationResult {
+    let mut evidence = Evidence::of_clouds(problem, &init);
+    let (result, pending) = run_on_clouds(problem, init, first_iteration, plan, observer.as_deref_mut());
+    let travelled = plan.starts_at_residual_rms()
+        && result.stop_reason == StopReason::Converged
+        && moved_in_widths(problem, &init, &result) > REACHED_SIGMAS;
+    let end = result.transform;
+    // As for the first of several starts (`register_from_starts`), rows left at the result.
+    evidence.widen_around(problem, &result);
+    let mut best = BestOfStarts::new(evidence);
+    best.next_iteration = first_iteration;
+    if !best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
+        return best.finish(problem);
+    }
+    if travelled {
+        best.park();
+        let (rerun, pending) =
+            run_on_clouds(problem, end, best.next_iteration, plan, observer.as_deref_mut());
+        if !best.offer_rerun(problem, rerun, pending) {
+            return best.finish(problem);
+        }
+    }
+    challenge_with_rivals(problem, &mut best, plan, observer);
+    best.finish(problem)
+}
+
 /// Runs SIE by `plan` from each rival pose of the best result so far that stays a rival once
 /// settled, offered as another start: a better rival wins, one nearly as good lowers the
 /// margin. The rivals are its half turns (`half_turns`) and its shifts by a period of

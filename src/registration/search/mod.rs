@@ -17,5 +17,7 @@ mod pair_starts;
 mod period_shifts;
 
 pub(crate) use choice::BestOfStarts;
-pub(crate) use cloud_starts::{challenge_with_rivals, register_from_starts, run_on_clouds};
+pub(crate) use cloud_starts::{
+    challenge_with_rivals, register_from_starts, register_one_start, run_on_clouds,
+};
 pub(crate) use pair_starts::{register_from_guess, register_from_hypotheses};
