@@ -840,8 +840,9 @@ sie_status sie_context_set_starts(struct sie_context *ctx, uint32_t starts);
 sie_status sie_context_set_warm_start(struct sie_context *ctx, const struct sie_summary *previous);
 
 /**
- * Caps the number of updates of each start (>= 1; with SIE_STARTS_AUTOMATIC several starts
- * run, and `sie_summary.iterations` counts the updates of all of them). Default: 200.
+ * Caps the number of updates of each start (>= 1; several starts may run: the automatic ones,
+ * a single start's rerun from its result, half turns and period shifts, and
+ * `sie_summary.iterations` counts the updates of all of them). Default: 200.
  *
  * # Safety
  * `ctx` is NULL or a live context.

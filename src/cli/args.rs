@@ -115,7 +115,9 @@ pub struct RegisterArgs {
         help_heading = "Start and stop"
     )]
     pub init_pose: Option<Vec<f64>>,
-    /// Cap on IRLS updates (each one matches, weighs and solves once).
+    /// Cap on each start's IRLS updates (each one matches, weighs and solves once); the summary's
+    /// iterations count the updates of every start run (the automatic starts, a single start's
+    /// rerun from its result, half turns, period shifts).
     #[arg(long, value_name = "N", default_value_t = defaults().max_iterations, help_heading = "Start and stop")]
     pub max_iterations: u32,
     /// Converged when an update moves the translation by less than this (input units) …

@@ -145,8 +145,9 @@ pub unsafe extern "C" fn sie_context_set_warm_start(
     }
 }
 
-/// Caps the number of updates of each start (>= 1; with SIE_STARTS_AUTOMATIC several starts
-/// run, and `sie_summary.iterations` counts the updates of all of them). Default: 200.
+/// Caps the number of updates of each start (>= 1; several starts may run: the automatic ones,
+/// a single start's rerun from its result, half turns and period shifts, and
+/// `sie_summary.iterations` counts the updates of all of them). Default: 200.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context.
