@@ -259,7 +259,9 @@ enum sie_starts
      * Several starts, the most significant result is kept (the default). Correspondences:
      * the initial guess and the best poses of a threshold-free hypothesis search. Clouds: the
      * initial guess with the paper's beta0, with a narrow beta0, and after a scale-free (L1)
-     * lead. Applies to the SIE cost with the automatic initial beta; baseline costs and a
+     * lead; the search ends after the paper's start when its result is GOOD on its own
+     * evidence and either moved little (10 fitted sigma) or the paper's run from it stays there
+     * (`starts_run` 2, `agreeing_starts` 2). Applies to the SIE cost with the automatic initial beta; baseline costs and a
      * fixed initial beta (`sie_context_set_regularizer`) run once from the initial guess.
      */
     SIE_STARTS_AUTOMATIC = 0,

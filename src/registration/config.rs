@@ -22,8 +22,9 @@ pub enum Starts {
     /// Correspondences: besides the initial guess, the poses of a threshold-free hypothesis
     /// search (`search::hypotheses`). ICP: the initial guess with the paper's β₀, with a narrow
     /// β₀, and after a scale-free lead (`search::cloud_starts`). SIE runs from each and the result with
-    /// the most significant inlier cluster is returned. Each start may make up to
-    /// `max_iterations` updates.
+    /// the most significant inlier cluster is returned; the search ends after the paper's start
+    /// when its result is GOOD on its own evidence and either moved little (10 fitted σ) or the
+    /// paper's run from it stays there. Each start may make up to `max_iterations` updates.
     #[default]
     Automatic,
     /// Only the initial guess (the paper's method as published). A run that ends more than 10

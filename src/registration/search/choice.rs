@@ -111,19 +111,22 @@ impl BestOfStarts {
 
     /// As `offer`, for a run of the paper's method from the best result's own pose: it
     /// replaces the best when it ends at the same pose (the later run is the one that stayed).
+    /// Whether it ended at that pose; `None` when it was cancelled (or no start ran before).
     pub(crate) fn offer_rerun(
         &mut self,
         problem: &mut dyn Problem,
         result: RegistrationResult,
         pending: PendingPerPoint,
-    ) -> bool {
-        self.offer_with(
+    ) -> Option<bool> {
+        let from = self.best.as_ref().map(|best| best.result.transform)?;
+        let offered = self.offer_with(
             problem,
             result,
             Some(pending),
             StartKind::InitialGuess,
             SamePose::TakeLater,
-        )
+        );
+        offered.then(|| self.last_end_at(&*problem, &from))
     }
 
     fn offer_with(

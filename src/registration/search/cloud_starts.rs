@@ -156,11 +156,20 @@ pub(crate) fn register_from_starts(
         if !best.offer(problem, result, Some(pending), kind) {
             return best.finish(problem);
         }
-        let stayed = moved.is_some_and(|moved| {
-            moved <= STAYED_SIGMAS || (moved <= REACHED_SIGMAS && best.best_is_good_alone())
-        });
-        if stayed {
+        let Some(moved) = moved else { continue };
+        if moved <= STAYED_SIGMAS || (moved <= REACHED_SIGMAS && best.best_is_good_alone()) {
             break;
+        }
+        // Further, a result GOOD on its own evidence ends the search too when the paper's run
+        // from it stays there (as one start's must, `register_one_start`): the other starts
+        // are for a first start that is weak or does not hold. (An exact fit, σ = 0, has no
+        // widths to count: `moved` is NaN there and neither rule applies.)
+        if moved > REACHED_SIGMAS && best.best_is_good_alone() {
+            match rerun_from_best(problem, &mut best, &start_plan, observer.as_deref_mut()) {
+                RerunEnd::Cancelled => return best.finish(problem),
+                RerunEnd::SamePose => break,
+                RerunEnd::Elsewhere => {}
+            }
         }
     }
     challenge_with_rivals(problem, &mut best, plan, observer);
@@ -186,7 +195,6 @@ pub(crate) fn register_one_start(
     let travelled = plan.starts_at_residual_rms()
         && result.stop_reason == StopReason::Converged
         && moved_in_widths(problem, &init, &result) > REACHED_SIGMAS;
-    let end = result.transform;
     // As for the first of several starts (`register_from_starts`), rows left at the result.
     evidence.widen_around(problem, &result);
     let mut best = BestOfStarts::new(evidence);
@@ -194,16 +202,42 @@ pub(crate) fn register_one_start(
     if !best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
         return best.finish(problem);
     }
-    if travelled {
-        best.park();
-        let (rerun, pending) =
-            run_on_clouds(problem, end, best.next_iteration, plan, observer.as_deref_mut());
-        if !best.offer_rerun(problem, rerun, pending) {
-            return best.finish(problem);
-        }
+    if travelled && rerun_from_best(problem, &mut best, plan, observer.as_deref_mut()) == RerunEnd::Cancelled
+    {
+        return best.finish(problem);
     }
     challenge_with_rivals(problem, &mut best, plan, observer);
     best.finish(problem)
+}
+
+/// Where a run from the best result's own pose ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RerunEnd {
+    /// At the same pose (it replaced the best: the later run is the one that stayed).
+    SamePose,
+    /// Elsewhere (offered as another start).
+    Elsewhere,
+    /// The caller cancelled it.
+    Cancelled,
+}
+
+/// Runs `plan` from the best result's pose and offers the result (`BestOfStarts::offer_rerun`).
+fn rerun_from_best(
+    problem: &mut CloudProblem<'_>,
+    best: &mut BestOfStarts,
+    plan: &RunPlan,
+    observer: Option<&mut Observer<'_>>,
+) -> RerunEnd {
+    let Some((end, _)) = best.best_pose() else {
+        return RerunEnd::Elsewhere;
+    };
+    best.park();
+    let (rerun, pending) = run_on_clouds(problem, end, best.next_iteration, plan, observer);
+    match best.offer_rerun(problem, rerun, pending) {
+        None => RerunEnd::Cancelled,
+        Some(true) => RerunEnd::SamePose,
+        Some(false) => RerunEnd::Elsewhere,
+    }
 }
 
 /// Runs SIE by `plan` from each rival pose of the best result so far that stays a rival once
@@ -259,7 +293,8 @@ pub(crate) fn challenge_with_rivals(
 /// narrower starts from the same guess cannot be pulled elsewhere by data that did not pull the
 /// widest one. Within `REACHED_SIGMAS`, a result GOOD on its own evidence (no other start to
 /// compare with) ends the search too: a sequence's constant-velocity guess, off by the
-/// acceleration, is the common case (one start, the paper's cost).
+/// acceleration, is the common case (one start, the paper's cost). Further, such a result ends
+/// it once the paper's run from the result stays there (two runs instead of three starts).
 fn moved_in_widths(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> f64 {
     let typical_scale = problem.rows().scale.median();
     moved_apart(problem.probe_points(), init, &result.transform) / (typical_scale * result.sigma_rms())
