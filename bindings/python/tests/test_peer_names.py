@@ -107,3 +107,33 @@ def test_h_is_the_information_and_converts_to_small_gicps_frame():
     # 0.03 here, at most 0.08 over seeds 7-12 (the estimate's own scatter); unconverted 0.95-0.97.
     assert relative_difference(in_source_frame) < 0.15, (in_source_frame, expected)
     assert relative_difference(result.H) > 0.5
+
+
+def test_h_against_small_gicps_own_h():
+    """small_gicp's point-to-point ICP, started at sie's pose on the same inlier pairs: its H
+    over the noise variance is sie's H moved into its frame (Ad.T @ H @ Ad), to 0.03-0.08 of
+    the largest entry over seeds 0-2; sie's H as it is, or not divided by the variance, is
+    0.96-1.0 off."""
+    from conftest import require
+
+    small_gicp = require("small_gicp")
+    t0 = rigid(0.8, [1, 2, 3], [2.0, -1.0, 3.0])
+    noise = 0.01
+    source, target = paper_simulation(1000, 0, noise, t0, np.random.default_rng(0))
+    result = sie.Context().align_correspondences(source, target)
+    target_cloud = small_gicp.PointCloud(target)
+    theirs = small_gicp.align(target_cloud, small_gicp.PointCloud(source), small_gicp.KdTree(target_cloud),
+                              init_T_target_source=result.T_target_source, registration_type="ICP",
+                              max_correspondence_distance=0.05)
+    assert theirs.converged and theirs.num_inliers == 1000
+    expected = theirs.H / noise**2
+
+    rotation, translation = result.transform[:3, :3], result.transform[:3, 3]
+    adjoint = np.block([[rotation, np.zeros((3, 3))], [skew(translation) @ rotation, rotation]])
+    in_their_frame = adjoint.T @ result.H @ adjoint
+
+    def relative_difference(matrix):
+        return np.abs(matrix - expected).max() / np.abs(expected).max()
+
+    assert relative_difference(in_their_frame) < 0.15, (in_their_frame, expected)
+    assert relative_difference(result.H) > 0.5 and relative_difference(in_their_frame * noise**2) > 0.5
