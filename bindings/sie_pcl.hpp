@@ -9,6 +9,7 @@
  *   sie::PclRegistration<pcl::PointXYZ, pcl::PointXYZ> icp;         // a pcl::Registration: in place
  *   icp.setInputSource(source); icp.setInputTarget(target);        // of pcl::IterativeClosestPoint
  *   icp.align(aligned); icp.hasConverged(); icp.getFitnessScore(); icp.getFinalTransformation();
+ *   icp.getCorrespondences();                                     // the inliers' pairs
  *
  * Clouds are passed to the library in place through its byte-stride API (sizeof(PointT) between
  * points): nothing is copied. A NaN coordinate is Status::NonFiniteInput unless
@@ -29,6 +30,7 @@
 #include <pcl/common/io.h>
 #include <pcl/common/point_tests.h>
 #include <pcl/common/transforms.h>
+#include <pcl/correspondence.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/registration/registration.h>
@@ -37,6 +39,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -160,6 +163,8 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *   getFitnessScore uses (sie matches with its own).
  * - getFitnessScore(max_range) is PCL's own: mean squared nearest-neighbour distance of the
  *   aligned source to the target.
+ * - getCorrespondences() (PCL's Registration keeps them protected): the inliers of the last
+ *   align() as pcl::Correspondences, the pairs Open3D's correspondence_set lists.
  * - getPoseCovariance() / getPoseInformation() (sie's; PCL has none): the 6x6 covariance of
  *   the final transformation and its inverse, ROTATION FIRST: for T = Exp(d) * T_final with
  *   d = (rotation vector [rad], translation [input units]) in the target frame (a left
@@ -242,6 +247,18 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
     /** The inverse of getPoseCovariance() where the data constrain the pose (near 0 in free
      * directions): the information matrix, same order and frame. Zero when align() failed. */
     const Eigen::Matrix<double, 6, 6> &getPoseInformation() const noexcept { return pose_information_; }
+    /**
+     * The last align()'s inliers as PCL correspondences, in source order: one per source point
+     * with a match and P(inlier) >= kInlierProbability, index_query its index in the input
+     * source (setIndices() respected), index_match the target point's, distance the squared
+     * distance between them at getFinalTransformation() (as PCL's CorrespondenceEstimation
+     * reports it). Their number over the source points registered is Open3D's fitness. Empty
+     * after a failed align(). sie has no distance gate: setMaxCorrespondenceDistance does not
+     * select them.
+     */
+    const pcl::Correspondences &getCorrespondences() const noexcept { return *this->correspondences_; }
+    /** A matched source point with at least this P(inlier) is an inlier (getCorrespondences()). */
+    static constexpr double kInlierProbability = 0.5;
     /** The metric the last align() ended with. */
     Metric getMetricUsed() const noexcept { return metric_used_; }
     /** Why the last align() could not run (empty after a successful one). */
@@ -249,6 +266,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
 
   protected:
     using Base::converged_;
+    using Base::correspondences_;
     using Base::final_transformation_;
     using Base::indices_;
     using Base::input_;
@@ -266,6 +284,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         summary_ = Summary{};
         pose_covariance_.setZero();
         pose_information_.setZero();
+        correspondences_->clear();
         final_transformation_ = guess;
         // A subset given by setIndices() is registered on its own (copied); otherwise in place.
         const bool subset = indices_->size() != input_->size();
@@ -283,6 +302,7 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
             final_transformation_ = guess;
             pose_covariance_.setZero();
             pose_information_.setZero();
+            correspondences_->clear();
         }
         move_source(output, final_transformation_);
     }
@@ -354,6 +374,29 @@ class PclRegistration : public pcl::Registration<PointSource, PointTarget, Scala
         final_transformation_ = transform.cast<Scalar>();
         previous_transformation_ = previous.cast<Scalar>();
         transformation_ = (current * previous.inverse()).cast<Scalar>();
+        collect_inliers(source, transform);
+    }
+
+    // getCorrespondences(): the last run's matched points with P(inlier) >= kInlierProbability.
+    void collect_inliers(const PointCloudSource &source, const Eigen::Matrix4d &transform) {
+        const std::vector<double> probabilities = context_.inlier_probabilities();
+        const std::vector<std::int64_t> matches = context_.correspondences();
+        const bool subset = indices_->size() != input_->size();
+        const Eigen::Matrix3d rotation = transform.topLeftCorner<3, 3>();
+        const Eigen::Vector3d translation = transform.topRightCorner<3, 1>();
+        correspondences_->clear();
+        for (std::size_t i = 0; i < matches.size(); ++i) {
+            if (matches[i] < 0 || probabilities[i] < kInlierProbability) {
+                continue;
+            }
+            const auto &p = source.points[i];
+            const auto &q = target_->points[static_cast<std::size_t>(matches[i])];
+            const Eigen::Vector3d moved = rotation * Eigen::Vector3d(p.x, p.y, p.z) + translation;
+            const double squared_distance = (moved - Eigen::Vector3d(q.x, q.y, q.z)).squaredNorm();
+            const pcl::index_t query = subset ? (*indices_)[i] : static_cast<pcl::index_t>(i);
+            correspondences_->emplace_back(query, static_cast<pcl::index_t>(matches[i]),
+                                           static_cast<float>(squared_distance));
+        }
     }
 
     // The target's kd-tree and normals, built once per setInputTarget() (and again only when

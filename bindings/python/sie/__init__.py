@@ -5,6 +5,7 @@
     result.transform                           # 4 x 4, T_target_source: p_target = T @ p_source
     result.summary.verdict                     # Verdict.GOOD: use it; DOUBTFUL: check; UNSUPPORTED: reject
     result.covariance, result.information      # 6 x 6, rotation first (see sie.Registration)
+    result.fitness, result.correspondence_set  # Open3D's names; T_target_source, H: small_gicp's
     with sie.Context(max_iterations=100) as ctx:   # settings, callbacks, trace, histograms
         result = ctx.align(source, target)
 
@@ -39,6 +40,7 @@ from ._results import Histogram, InlierEstimate, Model, Registration, Summary, T
 from ._arrays import CloudLike as CloudLike, _points as _points
 from ._context import NoiseCallback as NoiseCallback, ProgressCallback as ProgressCallback
 from ._library import _lib as _lib
+from ._results import INLIER_PROBABILITY as INLIER_PROBABILITY
 
 __all__ = [
     "Cloud",

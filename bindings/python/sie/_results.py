@@ -10,6 +10,9 @@ import numpy as np
 from . import _native
 from ._enums import StartKind, StopReason, Verdict
 
+INLIER_PROBABILITY = 0.5
+"""A source point with a correspondence and P(inlier) at least this is an inlier (Registration)."""
+
 
 @dataclass(frozen=True)
 class Summary:
@@ -72,6 +75,12 @@ class Registration:
     larger variance and a far smaller information than the constrained ones (with estimated
     normals only by about (point spacing / noise)**2). Both are zeros when the result had too
     few weighted residuals to measure a variance.
+
+    The peers' names answer too, so code written for Open3D's or small_gicp's result reads this
+    one (properties computed from the fields above; the table in the README lists them). An
+    INLIER here is a source point that has a correspondence and P(inlier) >= INLIER_PROBABILITY
+    (0.5): more likely an inlier than not. Open3D and small_gicp call a pair an inlier when it is
+    closer than the max_correspondence_distance they were given; sie has no such distance.
     """
 
     transform: np.ndarray  # 4 x 4 float64, T_target_source
@@ -80,6 +89,94 @@ class Registration:
     correspondences: np.ndarray  # matched target index per source point (-1 if unmatched)
     covariance: np.ndarray  # 6 x 6 Cov(d), d = (rotation vector, translation), target frame
     information: np.ndarray  # 6 x 6, inverse of covariance where the pose is constrained
+
+    # ---- Open3D's RegistrationResult and small_gicp's RegistrationResult names ----------------
+
+    @property
+    def inlier_mask(self) -> np.ndarray:
+        """Per source point: True for an inlier (matched, P(inlier) >= INLIER_PROBABILITY)."""
+        mask: np.ndarray = (self.correspondences >= 0) & (self.inlier_probabilities >= INLIER_PROBABILITY)
+        return mask
+
+    @property
+    def correspondence_set(self) -> np.ndarray:
+        """Open3D's name: the inliers' pairs as an n x 2 int64 array, rows (source index, target
+        index) in source order. Open3D's pairs are those closer than its distance gate;
+        Open3D's tensor API gives a per-source-point array with -1 for none instead, which is
+        np.where(result.inlier_mask, result.correspondences, -1) here."""
+        sources = np.flatnonzero(self.inlier_mask)
+        pairs: np.ndarray = np.column_stack((sources, self.correspondences[sources])).astype(np.int64, copy=False)
+        return pairs
+
+    @property
+    def num_inliers(self) -> int:
+        """small_gicp's name: the number of inliers (rows of correspondence_set). small_gicp
+        counts the pairs within its max_correspondence_distance."""
+        return int(np.count_nonzero(self.inlier_mask))
+
+    @property
+    def fitness(self) -> float:
+        """Open3D's name: inliers / source points (0 for an empty source), as Open3D's "number of
+        inlier correspondences / number of source points". summary.inlier_fraction is the soft
+        version: the mean P(inlier) over the source points."""
+        count = self.summary.source_count
+        return self.num_inliers / count if count else 0.0
+
+    @property
+    def inlier_rmse(self) -> float:
+        """Open3D's name for summary.rmse: sqrt(sum P*r**2 / sum P) over the matched points, r
+        the metric's residual (the distance to the target point's tangent plane for
+        point-to-plane), in input units. Not Open3D's quantity exactly: Open3D averages the
+        squared point-to-point distances of its correspondence_set with equal weights; the C API
+        returns no per-point residuals to compute that from."""
+        return float(self.summary.rmse)
+
+    @property
+    def transformation(self) -> np.ndarray:
+        """Open3D's name for transform (4 x 4 float64, T_target_source)."""
+        return self.transform
+
+    @property
+    def T_target_source(self) -> np.ndarray:  # noqa: N802 - small_gicp's spelling
+        """small_gicp's name for transform (4 x 4 float64: p_target = T @ p_source)."""
+        return self.transform
+
+    @property
+    def converged(self) -> bool:
+        """Open3D's (tensor API) and small_gicp's name for summary.converged: sie stopped by
+        its own convergence criteria (not the iteration cap, not a cancellation). Check
+        summary.verdict too: a converged pose can still be wrong."""
+        return bool(self.summary.converged)
+
+    @property
+    def num_iterations(self) -> int:
+        """Open3D's (tensor API) name for summary.iterations: updates made, by every start
+        (Starts.AUTOMATIC runs several)."""
+        return int(self.summary.iterations)
+
+    @property
+    def iterations(self) -> int:
+        """small_gicp's name for summary.iterations (updates of every start). small_gicp stores
+        the 0-based index of its last iteration, one less than the updates it made."""
+        return int(self.summary.iterations)
+
+    @property
+    def H(self) -> np.ndarray:  # noqa: N802 - small_gicp's spelling
+        """small_gicp's name for information (6 x 6, rotation first, then translation, as
+        small_gicp orders them). Two differences from small_gicp's H:
+
+        - the frame: sie's d perturbs on the LEFT in the target frame, T = Exp(d) @ transform;
+          small_gicp's on the right in the source frame, T = transform @ Exp(d_s). With R, t the
+          rotation and translation of transform, d = Ad @ d_s, Ad = [[R, 0], [hat(t) @ R, R]],
+          so small_gicp's frame is Ad.T @ H @ Ad;
+        - the scale: sie's is the inverse of the pose covariance, measured from the inliers'
+          residuals and noise (units 1/rad**2, 1/length**2, ...); small_gicp's is its last
+          Gauss-Newton Hessian sum J.T @ W @ J (W = identity for its point-to-point ICP; its
+          GICP weighs by the points' combined covariances), not divided by a noise variance.
+
+        small_gicp's b (gradient) and error (cost) have no counterpart: the library does not
+        return them."""
+        return self.information
 
 
 @dataclass(frozen=True)

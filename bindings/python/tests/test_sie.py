@@ -721,15 +721,21 @@ def test_type_hints_serve_a_strict_mypy_user(tmp_path):
         "    print(reason, result.summary.sigma[0] + 1.0)\n"
         "    covariance: np.ndarray = result.covariance @ result.information\n"
         "    print(covariance.shape)\n"
+        "    pairs: np.ndarray = result.correspondence_set\n"
+        "    share: float = result.fitness + result.inlier_rmse\n"
+        "    count: int = result.num_inliers + result.num_iterations + result.iterations\n"
+        "    done: bool = result.converged\n"
+        "    print(pairs.shape, share, count, done, result.H.shape, result.T_target_source.shape)\n"
         "    return result.transform\n"
     )
     cache = ["--cache-dir", str(tmp_path / "mypy-cache")]  # numpy's stubs analysed once
     out, err, status = mypy.run(["--strict", *cache, str(good)])
     assert status == 0, out + err
     bad = tmp_path / "bad.py"
-    bad.write_text("import sie\n\nsigma: str = sie.Context().summary().sigma\n")
+    bad.write_text("import sie\n\nsigma: str = sie.Context().summary().sigma\n"
+                   "inliers: str = sie.align([[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]).num_inliers\n")
     out, err, status = mypy.run(["--strict", *cache, str(bad)])
-    assert status == 1 and "Incompatible types" in out, out + err
+    assert status == 1 and out.count("Incompatible types") == 2, out + err
 
 
 def test_warm_start_from_a_previous_summary(clouds):
