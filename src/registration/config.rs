@@ -29,8 +29,8 @@ pub enum Starts {
     Automatic,
     /// Only the initial guess (the paper's method as published). A run that ends more than 10
     /// fitted σ from the guess is run once more from its result and the more significant of
-    /// the two is kept: a pose the method does not return to is no answer (one start's wrong
-    /// poses, such as a flipped low-overlap scan, are left that way).
+    /// the two is kept: a pose the method does not return to is no answer (a flipped
+    /// low-overlap scan that one run stopped at is left by the second for a better fit).
     InitialGuess,
 }
 
