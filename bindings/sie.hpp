@@ -122,6 +122,16 @@ enum class StartKind : std::uint32_t {
     PeriodShift = SIE_START_KIND_PERIOD_SHIFT,
 };
 
+/** What became of a frame given to Context::register_frame. A frame refused as input throws
+ * instead (Error with its status); the odometry is then unchanged. */
+enum class FrameStatus : std::uint32_t {
+    First = SIE_FRAME_STATUS_FIRST,
+    Accepted = SIE_FRAME_STATUS_ACCEPTED,
+    Repeated = SIE_FRAME_STATUS_REPEATED,
+    NotGood = SIE_FRAME_STATUS_NOT_GOOD,
+    Jumped = SIE_FRAME_STATUS_JUMPED,
+};
+
 enum class StopReason : std::uint32_t {
     None = SIE_STOP_REASON_NONE,
     Converged = SIE_STOP_REASON_CONVERGED,
@@ -365,6 +375,43 @@ class Target {
     std::shared_ptr<const sie_target> target_;
 };
 
+/** Frame-to-frame odometry (Context::odometry): each frame registers onto the last accepted
+ * frame from a constant-velocity guess, and only a GOOD registration moves the trajectory. Frames
+ * go through Context::register_frame; one call at a time per odometry. Move-only. */
+class Odometry {
+  public:
+    Odometry() noexcept = default;
+
+    explicit operator bool() const noexcept { return static_cast<bool>(odometry_); }
+    /** T_world_sensor of the last accepted frame (the identity before the first). */
+    Transform pose() const {
+        Transform out = identity_transform();
+        if (odometry_) {
+            (void)sie_odometry_pose(odometry_.get(), out.data());
+        }
+        return out;
+    }
+    /** A frame the driver dropped: the next frame's guess moves one frame further. */
+    void skip_frame() noexcept { sie_odometry_skip_frame(odometry_.get()); }
+    sie_odometry *get() noexcept { return odometry_.get(); }
+
+  private:
+    friend class Context;
+    explicit Odometry(sie_odometry *odometry) : odometry_(odometry) {}
+
+    struct Free {
+        void operator()(sie_odometry *odometry) const noexcept { sie_odometry_free(odometry); }
+    };
+    std::unique_ptr<sie_odometry, Free> odometry_;
+};
+
+/** One frame's outcome: its status, and T_world_sensor (the frame's pose for First and
+ * Accepted, the last accepted pose otherwise). */
+struct Frame {
+    FrameStatus status;
+    Transform T_world_sensor;
+};
+
 class Context {
   public:
     /** A context with the default configuration. Throws VersionMismatch for a stale library. */
@@ -596,6 +643,31 @@ class Context {
         return out;
     }
 
+    /** An odometry registering with a copy of this context's settings (set skip_non_finite and
+     * skip_origin first for sensor frames that mark missing returns with NaN or 0 0 0). */
+    Odometry odometry() const {
+        sie_odometry *out = nullptr;
+        check(sie_context_odometry_new(get(), &out));
+        return Odometry(out);
+    }
+
+    /** Registers the next frame (points in its sensor's frame); the frame's registration is
+     * then this context's result (summary() etc.) for Accepted, NotGood and Jumped. A frame
+     * refused as input throws Error and changes nothing; a cancelled one counts as NotGood. */
+    Frame register_frame(Odometry &odometry, Points frame) {
+        return frame_outcome(odometry, [&](double *pose, std::uint32_t *status) {
+            return sie_context_odometry_register_frame(get(), odometry.get(), frame.xyz, frame.count,
+                                                       frame.stride_bytes, pose, status);
+        });
+    }
+
+    Frame register_frame(Odometry &odometry, PointsD frame) {
+        return frame_outcome(odometry, [&](double *pose, std::uint32_t *status) {
+            return sie_context_odometry_register_frame_d(get(), odometry.get(), frame.xyz, frame.count,
+                                                         frame.stride_bytes, pose, status);
+        });
+    }
+
     /** ICP with one unit normal per target point (0 0 0 = none) for point-to-plane. */
     Transform align_with_normals(Points source, Points target, Points target_normals,
                                  const Transform &init = identity_transform()) {
@@ -795,6 +867,13 @@ class Context {
         check(sie_context_prepare_target_d(get(), target.xyz, target.count, target.stride_bytes, normals.xyz,
                                            normals.stride_bytes, &out));
         return Target(out);
+    }
+
+    template <typename Register> Frame frame_outcome(Odometry &odometry, Register register_call) {
+        Transform pose = odometry.pose();
+        std::uint32_t status = SIE_FRAME_STATUS_NOT_GOOD;
+        run(register_call(pose.data(), &status));
+        return Frame{static_cast<FrameStatus>(status), pose};
     }
 
     static void check_same_count(std::size_t source_count, std::size_t target_count) {

@@ -31,7 +31,10 @@ use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
 use sie::synthetic::lidar::{Scanner, drive};
 use sie::synthetic::room_trajectory;
-use sie::{Hooks, Point, PrepareOptions, PreparedTarget, RegistrationConfig, WarmStart, register_clouds_to};
+use sie::{
+    FrameStatus, Hooks, Odometry, Point, PrepareOptions, PreparedTarget, RegistrationConfig, WarmStart,
+    register_clouds_to,
+};
 
 /// The map gets a keyframe every this many frames; its prepared target serves the frames between.
 const KEYFRAME_INTERVAL: usize = 5;
@@ -71,6 +74,7 @@ fn main() -> Result<(), String> {
                             println!("{}", run(&sequence, mode, t, start)?.csv());
                         }
                     }
+                    println!("{}", run_odometry(&sequence, t)?.csv());
                 }
             }
             Ok(())
@@ -81,8 +85,12 @@ fn main() -> Result<(), String> {
             println!("{HEADER}");
             let result = (|| {
                 for sequence in read_sequences(&dir)? {
-                    for (mode, start) in [(Mode::PreviousFrame, Start::Cold), (Mode::Map, Start::Warm)] {
-                        let row = run(&sequence, mode, 1, start)?;
+                    let rows = [
+                        run(&sequence, Mode::PreviousFrame, 1, Start::Cold)?,
+                        run(&sequence, Mode::Map, 1, Start::Warm)?,
+                        run_odometry(&sequence, 1)?,
+                    ];
+                    for row in rows {
                         println!("{}", row.csv());
                         // A sanity bound, not a benchmark: odometry on clean synthetic frames.
                         if !(row.rpe_t_rmse_mm < 50.0 && row.rpe_r_rmse_deg < 1.0) {
@@ -129,6 +137,8 @@ pub enum Start {
     Cold,
     /// `RegistrationConfig::warm_start` from the previous frame's result.
     Warm,
+    /// The library's `Odometry` (cold, frame to the last accepted frame, bad frames set aside).
+    Odometry,
 }
 
 pub struct Row {
@@ -154,6 +164,7 @@ impl Row {
             match self.start {
                 Start::Cold => "",
                 Start::Warm => " warm start",
+                Start::Odometry => " (sie::Odometry)",
             },
             self.sequence,
             self.points,
@@ -248,6 +259,61 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
         frames: frames.len(),
         threads,
         mode,
+        seconds,
+        rpe_t_rmse_mm,
+        rpe_r_rmse_deg,
+        rpe_t_max_mm,
+        note,
+    })
+}
+
+/// Frame to frame with the library's `Odometry`: a frame it sets aside (not GOOD, refused) takes
+/// the constant-velocity prediction as its estimate, and the note counts such frames.
+fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
+    let config = RegistrationConfig {
+        threads,
+        ..Odometry::sensor_config()
+    };
+    let mut odometry = Odometry::new(config).map_err(|e| e.to_string())?;
+    let frames = &sequence.frames;
+    let (mut iterations, mut starts, mut set_aside) = (0u64, 0u64, Vec::new());
+    let world = sequence.poses[0];
+    let mut estimates = Vec::with_capacity(frames.len());
+    let started = Instant::now();
+    for (i, frame) in frames.iter().enumerate() {
+        let outcome = odometry.register_frame(frame, Hooks::default());
+        if let Some(result) = &outcome.result {
+            iterations += u64::from(result.iterations);
+            starts += u64::from(result.search.starts_run);
+        }
+        if !matches!(outcome.status, FrameStatus::First | FrameStatus::Accepted) {
+            set_aside.push(format!("{i} {:?}", outcome.status));
+        }
+        let pose = outcome
+            .pose
+            .or(outcome.predicted_pose)
+            .unwrap_or_else(|| odometry.pose());
+        estimates.push(world * pose);
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let (rpe_t_rmse_mm, rpe_r_rmse_deg, rpe_t_max_mm) = relative_pose_errors(&sequence.poses, &estimates);
+    let registered = frames.len().saturating_sub(1).max(1) as u64;
+    let mut note = format!(
+        "{:.1} iterations/frame; {:.2} starts/frame; {} frames set aside",
+        iterations as f64 / registered as f64,
+        starts as f64 / registered as f64,
+        set_aside.len()
+    );
+    if !set_aside.is_empty() {
+        note += &format!(" ({})", set_aside.join(" "));
+    }
+    Ok(Row {
+        sequence: sequence.name.clone(),
+        start: Start::Odometry,
+        points: frames.iter().map(Vec::len).sum::<usize>() / frames.len(),
+        frames: frames.len(),
+        threads,
+        mode: Mode::PreviousFrame,
         seconds,
         rpe_t_rmse_mm,
         rpe_r_rmse_deg,

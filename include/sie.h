@@ -431,6 +431,49 @@ typedef uint32_t sie_cloud;
 #endif // __cplusplus
 
 /**
+ * What became of a frame given to `sie_context_odometry_register_frame` (`*out_frame_status`).
+ * A frame refused as input is not among them: the call returns its error status instead.
+ */
+enum sie_frame_status
+#if defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+  : uint32_t
+#endif // defined(__cplusplus) || __STDC_VERSION__ >= 202311L
+ {
+    /**
+     * The first usable frame: its sensor is the world frame (the pose written is the
+     * identity).
+     */
+    SIE_FRAME_STATUS_FIRST = 0,
+    /**
+     * Registered onto the last accepted frame with a GOOD verdict: its pose was written.
+     */
+    SIE_FRAME_STATUS_ACCEPTED = 1,
+    /**
+     * Bit for bit the last accepted frame again (a driver that sent it twice): ignored,
+     * nothing written but this status.
+     */
+    SIE_FRAME_STATUS_REPEATED = 2,
+    /**
+     * Registered, but the verdict is not GOOD: ignored (the context holds the result, whose
+     * summary says why); the pose was not written.
+     */
+    SIE_FRAME_STATUS_NOT_GOOD = 3,
+    /**
+     * Registered GOOD, but, once a motion has been measured, further from the constant-velocity
+     * guess than the frame's points are from its sensor (median range): no tracking explains
+     * such a jump; ignored, the pose was not written (the context holds the result).
+     */
+    SIE_FRAME_STATUS_JUMPED = 4,
+};
+#ifndef __cplusplus
+#if __STDC_VERSION__ >= 202311L
+typedef enum sie_frame_status sie_frame_status;
+#else
+typedef uint32_t sie_frame_status;
+#endif // __STDC_VERSION__ >= 202311L
+#endif // __cplusplus
+
+/**
  * A registration context: configuration, noise callback, last result and last error.
  * Create with `sie_context_new`, free with `sie_context_free`.
  *
@@ -444,6 +487,14 @@ typedef uint32_t sie_cloud;
  * the state is only ever reached through the one owning call.
  */
 typedef struct sie_context sie_context;
+
+/**
+ * Frame-to-frame odometry: each frame registers onto the last accepted frame from a
+ * constant-velocity guess, and only a GOOD registration moves the trajectory. Create with
+ * `sie_context_odometry_new`, feed frames with `sie_context_odometry_register_frame`, free with
+ * `sie_odometry_free`. One call at a time per odometry (it changes with every frame).
+ */
+typedef struct sie_odometry sie_odometry;
 
 /**
  * A prepared target cloud: its points sorted for matching, their kd-tree, and their normals
@@ -1212,6 +1263,87 @@ sie_status sie_context_register_to_d(struct sie_context *ctx,
                                      const struct sie_target *target,
                                      const double *init_T_target_source,
                                      double *out_T_target_source);
+
+/**
+ * Creates an odometry with a copy of the context's settings (later changes to the context do
+ * not reach it). Frames from sensors mark missing returns with NaN or 0 0 0: set
+ * `skip_non_finite` and `skip_origin` on the context first to drop them. On success
+ * `*out_odometry` receives a new odometry; on error it is not written. Errors: NULL_ARGUMENT,
+ * INVALID_ARGUMENT (a setting), BUSY.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `out_odometry` is NULL or writable for one pointer.
+ */
+sie_status sie_context_odometry_new(struct sie_context *ctx, struct sie_odometry **out_odometry);
+
+/**
+ * Registers the next frame: `count` float x, y, z triples at `stride_bytes` (0 = packed) in
+ * the sensor's frame. On OK `*out_frame_status` receives a `sie_frame_status` and, for FIRST
+ * and ACCEPTED only, `out_T_world_sensor` (16 doubles, row-major) the frame's pose; the
+ * context holds the frame's registration (ACCEPTED, NOT_GOOD, JUMPED) for the usual queries.
+ *
+ * A frame that cannot be used returns its error and changes nothing the caller holds; the
+ * odometry goes on from the last accepted frame as if it had not come, its guess one frame
+ * further: TOO_FEW_POINTS (count 0, or no point left after the context's skips),
+ * NON_FINITE_INPUT (a NaN or infinite coordinate the settings do not skip), OUT_OF_MEMORY.
+ * Caller errors (NULL_ARGUMENT, INVALID_ARGUMENT for a bad stride or alignment, BUSY) change
+ * nothing either. CANCELLED: the frame was set aside, its result stored, nothing written.
+ *
+ * # Safety
+ * `ctx` is NULL or a live context; `odometry` is NULL or a live odometry no other call is
+ * using; `xyz` is NULL or readable for `count` points at its stride; `out_T_world_sensor` is
+ * NULL or writable for 16 doubles; `out_frame_status` is NULL or writable for one `uint32_t`.
+ */
+sie_status sie_context_odometry_register_frame(struct sie_context *ctx,
+                                               struct sie_odometry *odometry,
+                                               const float *xyz,
+                                               size_t count,
+                                               size_t stride_bytes,
+                                               double *out_T_world_sensor,
+                                               uint32_t *out_frame_status);
+
+/**
+ * `sie_context_odometry_register_frame` with `double` points (strides as in
+ * `sie_context_register_d`).
+ *
+ * # Safety
+ * As `sie_context_odometry_register_frame`.
+ */
+sie_status sie_context_odometry_register_frame_d(struct sie_context *ctx,
+                                                 struct sie_odometry *odometry,
+                                                 const double *xyz,
+                                                 size_t count,
+                                                 size_t stride_bytes,
+                                                 double *out_T_world_sensor,
+                                                 uint32_t *out_frame_status);
+
+/**
+ * Tells the odometry a frame was lost before it could be given (the driver dropped it): the
+ * next frame's guess moves one frame further. NULL is a no-op.
+ *
+ * # Safety
+ * `odometry` is NULL or a live odometry no other call is using.
+ */
+void sie_odometry_skip_frame(struct sie_odometry *odometry);
+
+/**
+ * Writes T_world_sensor of the last accepted frame (the identity before the first) to
+ * `out_T_world_sensor` (16 doubles, row-major). NULL_ARGUMENT for a NULL argument,
+ * INVALID_ARGUMENT for a misaligned output (nothing written), otherwise OK.
+ *
+ * # Safety
+ * `odometry` is NULL or a live odometry no other call is changing; `out_T_world_sensor` is
+ * NULL or writable for 16 doubles.
+ */
+sie_status sie_odometry_pose(const struct sie_odometry *odometry, double *out_T_world_sensor);
+
+/**
+ * Frees an odometry. NULL is a no-op.
+ *
+ * # Safety
+ * `odometry` is NULL or a pointer from `sie_context_odometry_new` not yet freed.
+ */
+void sie_odometry_free(struct sie_odometry *odometry);
 
 /**
  * Copies the summary of the last successful registration to `*out`. NO_RESULT before the

@@ -625,3 +625,190 @@ fn estimate_inliers_rejects_bad_matrices_without_writing() {
     assert!(p.iter().all(|&v| v == SENTINEL));
     assert_eq!(count, 99);
 }
+
+/// A bumpy 1 × 0.8 m surface (curved both ways, so it fixes every direction) sampled on a 2 cm
+/// grid moved by (du, dv), with up to 2 mm of noise along z (a hash of the index and `seed`):
+/// two samplings of one surface, as two scans see it.
+fn noisy_surface(du: f32, dv: f32, seed: u32) -> Vec<[f32; 4]> {
+    (0..N as u32)
+        .map(|i| {
+            let (u, v) = ((i % 50) as f32 * 0.02 + du, (i / 50) as f32 * 0.02 + dv);
+            let hash =
+                (i.wrapping_mul(2_654_435_761) ^ seed.wrapping_mul(40_503)).wrapping_mul(2_246_822_519);
+            let noise = 0.002 * ((hash >> 8) as f32 / (1u32 << 24) as f32 - 0.5) * 2.0;
+            [
+                u,
+                v,
+                0.3 * u + 0.1 * (u * 9.0).sin() + 0.1 * (v * 7.0).cos() + noise,
+                0.0,
+            ]
+        })
+        .collect()
+}
+
+/// Odometry frames against every bad input: the documented status, a message, both outputs and
+/// the trajectory untouched; a good frame afterwards is registered as if none had come.
+#[test]
+fn odometry_rejects_every_frame_fault_without_writing_or_moving() {
+    let ctx = Context::new();
+    let mut odometry = null_mut();
+    let pose_of = |odometry| {
+        let mut pose = [0.0; 16];
+        // SAFETY: live odometry, 16 writable doubles.
+        assert_eq!(
+            unsafe { sie_odometry_pose(odometry, pose.as_mut_ptr()) },
+            sie_status::Ok
+        );
+        pose
+    };
+    let first = noisy_surface(0.0, 0.0, 1);
+    let (mut pose, mut status) = ([SENTINEL; 16], 99u32);
+    // SAFETY (all calls): arrays cover their counts at their strides, or are NULL.
+    unsafe {
+        assert_eq!(sie_context_odometry_new(ctx.0, &mut odometry), sie_status::Ok);
+        assert_eq!(
+            sie_context_odometry_register_frame(
+                ctx.0,
+                odometry,
+                first.as_ptr().cast(),
+                N,
+                16,
+                pose.as_mut_ptr(),
+                &mut status
+            ),
+            sie_status::Ok
+        );
+    }
+    assert_eq!(status, sie_frame_status::First as u32);
+    let start = pose_of(odometry);
+    type Fault = (&'static str, sie_status, &'static str);
+    let faults: [Fault; 11] = [
+        ("NULL context", sie_status::NullArgument, ""),
+        ("NULL odometry", sie_status::NullArgument, "odometry"),
+        ("NULL points", sie_status::NullArgument, "xyz"),
+        ("NULL pose output", sie_status::NullArgument, "out_T_world_sensor"),
+        ("NULL status output", sie_status::NullArgument, "out_frame_status"),
+        ("n = 0", sie_status::TooFewPoints, "0"),
+        ("n = 2", sie_status::TooFewPoints, "2"),
+        ("stride 8 (< 12 bytes)", sie_status::InvalidArgument, "stride"),
+        (
+            "stride 14 (not a multiple of 4)",
+            sie_status::InvalidArgument,
+            "stride",
+        ),
+        ("misaligned pointer", sie_status::InvalidArgument, "align"),
+        ("NaN coordinate", sie_status::NonFiniteInput, "xyz[1234]"),
+    ];
+    let mut rows = Vec::new();
+    for double in [false, true] {
+        for (name, expected, word) in faults {
+            let mut frame = cloud(N, 0.01);
+            if name == "NaN coordinate" {
+                frame[1234][1] = f32::NAN;
+            }
+            let frame_d = as_f64(&frame);
+            let (count, stride, offset) = match name {
+                "n = 0" => (0, 16, 0),
+                "n = 2" => (2, 16, 0),
+                "stride 8 (< 12 bytes)" => (N, 8, 0),
+                "stride 14 (not a multiple of 4)" => (N, 14, 0),
+                "misaligned pointer" => (N, 16, 2),
+                _ => (N, 16, 0),
+            };
+            let (mut pose, mut status) = ([SENTINEL; 16], 99u32);
+            let ctx_arg = if name == "NULL context" { null_mut() } else { ctx.0 };
+            let odometry_arg = if name == "NULL odometry" {
+                null_mut()
+            } else {
+                odometry
+            };
+            let pose_arg = if name == "NULL pose output" {
+                null_mut()
+            } else {
+                pose.as_mut_ptr()
+            };
+            let status_arg: *mut u32 = if name == "NULL status output" {
+                null_mut()
+            } else {
+                &mut status
+            };
+            // SAFETY: as above; the faults are values the library must reject before reading.
+            let got = unsafe {
+                if double {
+                    let xyz = (frame_d.as_ptr() as *const u8).wrapping_add(offset) as *const f64;
+                    let xyz = if name == "NULL points" { null() } else { xyz };
+                    sie_context_odometry_register_frame_d(
+                        ctx_arg,
+                        odometry_arg,
+                        xyz,
+                        count,
+                        stride * 2,
+                        pose_arg,
+                        status_arg,
+                    )
+                } else {
+                    let xyz = (frame.as_ptr() as *const u8).wrapping_add(offset) as *const f32;
+                    let xyz = if name == "NULL points" { null() } else { xyz };
+                    sie_context_odometry_register_frame(
+                        ctx_arg,
+                        odometry_arg,
+                        xyz,
+                        count,
+                        stride,
+                        pose_arg,
+                        status_arg,
+                    )
+                }
+            };
+            let message = if name == "NULL context" {
+                String::new()
+            } else {
+                ctx.last_error()
+            };
+            assert_eq!(got, expected, "double {double} / {name}: {message}");
+            assert!(
+                message.contains(word),
+                "double {double} / {name}: message {message:?}"
+            );
+            assert_eq!(
+                (pose, status),
+                ([SENTINEL; 16], 99),
+                "double {double} / {name}: output written"
+            );
+            assert_eq!(
+                pose_of(odometry),
+                start,
+                "double {double} / {name}: the trajectory moved"
+            );
+            rows.push(format!(
+                "odometry{} | {name} | {got:?} | {message}",
+                if double { " (double)" } else { "" }
+            ));
+        }
+    }
+    let next = noisy_surface(0.007, 0.013, 2);
+    // SAFETY: as above.
+    let got = unsafe {
+        sie_context_odometry_register_frame(
+            ctx.0,
+            odometry,
+            next.as_ptr().cast(),
+            N,
+            16,
+            pose.as_mut_ptr(),
+            &mut status,
+        )
+    };
+    let mut summary = sie_summary::default();
+    // SAFETY: live context.
+    unsafe { sie_context_get_summary(ctx.0, &mut summary) };
+    assert_eq!(
+        (got, status),
+        (sie_status::Ok, sie_frame_status::Accepted as u32),
+        "{} {summary:?}",
+        ctx.last_error()
+    );
+    // SAFETY: from sie_context_odometry_new, freed once.
+    unsafe { sie_odometry_free(odometry) };
+    println!("{}", rows.join("\n"));
+}

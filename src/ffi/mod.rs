@@ -22,6 +22,8 @@ mod register;
 
 mod target;
 
+mod odometry;
+
 mod results;
 
 mod estimate;
@@ -39,6 +41,7 @@ use callback::{NoiseCallback, ProgressCallback};
 use macro_rules_attribute::macro_rules_derive;
 
 pub use estimate::*;
+pub use odometry::*;
 pub use register::*;
 pub use results::*;
 pub use settings::*;

@@ -60,6 +60,30 @@ pub(super) unsafe fn run_and_store(
     init: Option<Rigid>,
     run: impl FnOnce(&RegistrationConfig, Hooks<'_>, Option<&Matrix4<f64>>) -> Result<RegistrationResult, Error>,
 ) -> Result<(), FfiError> {
+    let (result, cancelled_by) = run_with_context_hooks(state, cancel_requested, |config, hooks| {
+        run(config, hooks, init.as_ref().map(|rigid| &rigid.transform))
+    })?;
+    // SAFETY: per the contract.
+    unsafe { write_output(out_t_target_source, &row_major(&result.transform)) };
+    let cancelled = cancelled_error(&result, cancelled_by);
+    state.result = Some(result);
+    state.init_correction = init.map_or(0.0, |rigid| rigid.correction);
+    // Not a failure: the transform reached so far was written and the result stored.
+    cancelled.map_or(Ok(()), |by| {
+        Err(FfiError::new(
+            sie_status::Cancelled,
+            format!("{by}; the transform so far was written"),
+        ))
+    })
+}
+
+/// Runs `run` with the context's configuration, its noise callback and an observer that
+/// answers `sie_context_cancel` and the progress callback; also returns who asked to cancel.
+pub(super) fn run_with_context_hooks<R>(
+    state: &mut ContextState,
+    cancel_requested: &AtomicBool,
+    run: impl FnOnce(&RegistrationConfig, Hooks<'_>) -> Result<R, Error>,
+) -> Result<(R, Option<String>), FfiError> {
     // The callbacks are Copy; local copies keep `state.config` borrowable alongside them.
     let mut noise_callback = state.noise_callback;
     let progress_callback = state.progress_callback;
@@ -81,21 +105,15 @@ pub(super) unsafe fn run_and_store(
         noise: noise_callback.as_mut().map(|c| c as &mut dyn NoiseScales),
         observer: Some(&mut observe),
     };
-    let result = run(&state.config, hooks, init.as_ref().map(|rigid| &rigid.transform))?;
-    // SAFETY: per the contract.
-    unsafe { write_output(out_t_target_source, &row_major(&result.transform)) };
-    let cancelled = result.stop_reason == StopReason::Cancelled;
-    let iterations = result.iterations;
-    state.result = Some(result);
-    state.init_correction = init.map_or(0.0, |rigid| rigid.correction);
-    match cancelled_by.filter(|_| cancelled) {
-        // Not a failure: the transform reached so far was written and the result stored.
-        Some(by) => Err(FfiError::new(
-            sie_status::Cancelled,
-            format!("cancelled by {by} after {iterations} iterations; the transform so far was written"),
-        )),
-        None => Ok(()),
-    }
+    let result = run(&state.config, hooks)?;
+    Ok((result, cancelled_by))
+}
+
+/// "cancelled by … after N iterations" when `result` stopped because `cancelled_by` asked.
+pub(super) fn cancelled_error(result: &RegistrationResult, cancelled_by: Option<String>) -> Option<String> {
+    cancelled_by
+        .filter(|_| result.stop_reason == StopReason::Cancelled)
+        .map(|by| format!("cancelled by {by} after {} iterations", result.iterations))
 }
 
 /// # Safety

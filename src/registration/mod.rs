@@ -12,6 +12,7 @@
 //! * `irls`: one run of the IRLS loop by its own plan (β₀, matched subset, stopping rule).
 //! * `search`: where SIE starts and which start's result is kept.
 //! * `warm`: a sequence's warm start and whether its model held.
+//! * `odometry`: a sensor's frames one after another, bad frames set aside.
 //! * `significance`, `verdict`, `degeneracy`: how far to trust a result (`degeneracy`: how
 //!   well the surfaces under a point-to-point result fix its pose).
 //! * `input`, `units`: the input rules, and computing in safe units.
@@ -24,6 +25,7 @@ mod degeneracy;
 mod hooks;
 mod input;
 mod irls;
+mod odometry;
 mod problem;
 mod result;
 mod search;
@@ -40,6 +42,7 @@ pub use correspondences::register_correspondences;
 pub use covariance::PoseUncertainty;
 pub use hooks::{Hooks, Observer};
 pub use input::NORMAL_LENGTH_TOLERANCE;
+pub use odometry::{FrameOutcome, FrameStatus, Odometry};
 pub use result::{
     Quality, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry, Verdict,
 };

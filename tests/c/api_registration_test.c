@@ -607,3 +607,63 @@ void test_cancellation_and_non_finite(sie_context *ctx) {
     CHECK(probabilities[7] == 0.0 && correspondences[7] == -1 && correspondences[8] == 8);
     EXPECT(ctx, sie_context_set_skip_non_finite(ctx, false), SIE_STATUS_OK);
 }
+
+/* Odometry: the target's scan is the first frame (the world), the source's the second, whose pose
+ * is then cloud_truth; a repeat and a refused frame change nothing the caller holds. */
+void test_odometry(sie_context *ctx) {
+    sie_odometry *odometry = NULL;
+    sie_odometry *untouched = (sie_odometry *)&rng_state; /* a sentinel that must not be overwritten */
+    double pose[16], kept[16], stored[16];
+    uint32_t status = 99;
+    int k;
+
+    for (k = 0; k < 16; k++) {
+        pose[k] = SENTINEL;
+    }
+    EXPECT(ctx, sie_context_odometry_new(ctx, NULL), SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "out_odometry"));
+    EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
+    EXPECT(ctx, sie_context_odometry_new(ctx, &odometry), SIE_STATUS_OK);
+    CHECK(odometry != NULL && odometry != untouched);
+    EXPECT(ctx, sie_context_odometry_register_frame(ctx, NULL, &cloud_target[0].x, CLOUD, sizeof(padded_point), pose,
+                                                    &status),
+           SIE_STATUS_NULL_ARGUMENT);
+    CHECK(error_contains(ctx, "odometry"));
+    EXPECT(ctx, sie_context_odometry_register_frame(ctx, odometry, &cloud_target[0].x, CLOUD, sizeof(padded_point),
+                                                    NULL, &status),
+           SIE_STATUS_NULL_ARGUMENT);
+    CHECK(status == 99 && all_equal(pose, 16, SENTINEL));
+
+    EXPECT(ctx, sie_context_odometry_register_frame(ctx, odometry, &cloud_target[0].x, CLOUD, sizeof(padded_point), pose,
+                                                    &status),
+           SIE_STATUS_OK);
+    CHECK(status == SIE_FRAME_STATUS_FIRST);
+    CHECK(max_abs_difference(pose, IDENTITY, 16) == 0.0);
+    EXPECT(ctx, sie_context_odometry_register_frame_d(ctx, odometry, cloud_source_d, CLOUD, 0, pose, &status),
+           SIE_STATUS_OK);
+    CHECK(status == SIE_FRAME_STATUS_ACCEPTED);
+    CHECK(max_abs_difference(pose, cloud_truth, 16) < 0.01);
+    EXPECT(ctx, sie_odometry_pose(odometry, stored), SIE_STATUS_OK);
+    CHECK(max_abs_difference(pose, stored, 16) == 0.0);
+
+    /* The same frame again: REPEATED, the pose not written; two points: refused, nothing written. */
+    for (k = 0; k < 16; k++) {
+        kept[k] = pose[k];
+        pose[k] = SENTINEL;
+    }
+    EXPECT(ctx, sie_context_odometry_register_frame_d(ctx, odometry, cloud_source_d, CLOUD, 0, pose, &status),
+           SIE_STATUS_OK);
+    CHECK(status == SIE_FRAME_STATUS_REPEATED && all_equal(pose, 16, SENTINEL));
+    status = 99;
+    EXPECT(ctx, sie_context_odometry_register_frame(ctx, odometry, &cloud_source[0].x, 2, sizeof(padded_point), pose,
+                                                    &status),
+           SIE_STATUS_TOO_FEW_POINTS);
+    CHECK(status == 99 && all_equal(pose, 16, SENTINEL));
+    EXPECT(ctx, sie_odometry_pose(odometry, stored), SIE_STATUS_OK);
+    CHECK(max_abs_difference(kept, stored, 16) == 0.0);
+    EXPECT(ctx, sie_odometry_pose(NULL, stored), SIE_STATUS_NULL_ARGUMENT);
+    sie_odometry_skip_frame(odometry);
+    sie_odometry_skip_frame(NULL);
+    sie_odometry_free(odometry);
+    sie_odometry_free(NULL);
+}

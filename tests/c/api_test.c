@@ -635,6 +635,7 @@ int main(void) {
     test_correspondence_registration(ctx);
     test_cloud_registration(ctx);
     test_prepared_target(ctx);
+    test_odometry(ctx);
     test_noise_callback(ctx);
     test_estimate_inliers(ctx);
     test_progress_transform(ctx);

@@ -69,6 +69,7 @@ void test_no_result(sie_context *ctx);
 void test_correspondence_registration(sie_context *ctx);
 void test_cloud_registration(sie_context *ctx);
 void test_prepared_target(sie_context *ctx);
+void test_odometry(sie_context *ctx);
 void test_progress_transform(sie_context *ctx);
 void test_verdicts(sie_context *ctx);
 void test_cancellation_and_non_finite(sie_context *ctx);

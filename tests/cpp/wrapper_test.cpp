@@ -31,6 +31,8 @@ static_assert(static_cast<std::uint32_t>(sie::Verdict::Unsupported) == SIE_VERDI
 static_assert(static_cast<std::uint32_t>(sie::StartKind::Hypothesis) == SIE_START_KIND_HYPOTHESIS, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::StartKind::WarmStart) == SIE_START_KIND_WARM_START, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::Starts::InitialGuess) == SIE_STARTS_INITIAL_GUESS, "the C values");
+static_assert(static_cast<std::uint32_t>(sie::FrameStatus::Jumped) == SIE_FRAME_STATUS_JUMPED, "the C values");
+static_assert(!std::is_copy_constructible<sie::Odometry>::value, "an odometry owns its handle");
 
 namespace {
 
@@ -579,6 +581,28 @@ void test_prepared_target(const Clouds &clouds) {
     EXPECT_ERROR(sie::Status::InvalidArgument, context.align(clouds.source, target));
 }
 
+// Odometry: the target's scan is the first frame (the world), the source's the second; its pose
+// is T_target_source. A repeat and a refused frame change nothing.
+void test_odometry(const Clouds &clouds) {
+    sie::Context context;
+    sie::Odometry empty;
+    CHECK(!empty && empty.pose() == sie::identity_transform());
+    EXPECT_ERROR(sie::Status::NullArgument, context.register_frame(empty, clouds.source));
+    sie::Odometry odometry = context.odometry();
+    CHECK(static_cast<bool>(odometry));
+    const sie::Frame first = context.register_frame(odometry, clouds.target);
+    CHECK(first.status == sie::FrameStatus::First && first.T_world_sensor == sie::identity_transform());
+    const sie::Frame second = context.register_frame(odometry, clouds.source);
+    CHECK(second.status == sie::FrameStatus::Accepted);
+    CHECK(close_to(second.T_world_sensor, clouds.truth, 0.2, 0.004));
+    CHECK(context.summary().verdict == sie::Verdict::Good);
+    CHECK(odometry.pose() == second.T_world_sensor);
+    const sie::Frame again = context.register_frame(odometry, clouds.source);
+    CHECK(again.status == sie::FrameStatus::Repeated && again.T_world_sensor == second.T_world_sensor);
+    EXPECT_ERROR(sie::Status::TooFewPoints, context.register_frame(odometry, sie::Points(clouds.source.front().data(), 2)));
+    CHECK(odometry.pose() == second.T_world_sensor);
+}
+
 int main() {
     try {
         const Clouds clouds = room_clouds(2500);
@@ -591,6 +615,7 @@ int main() {
         test_progress_cancel_and_skipping(clouds);
         test_starts_and_verdicts(clouds);
         test_prepared_target(clouds);
+        test_odometry(clouds);
         test_estimate_inliers();
     } catch (const std::exception &unexpected) {
         std::fprintf(stderr, "unexpected exception: %s\n", unexpected.what());

@@ -30,8 +30,10 @@ from __future__ import annotations
 
 from ._context import Context, Target, align
 from ._enums import (
-    Cloud, CostFunction, HistogramMode, Metric, NoiseModel, Starts, StartKind, Status, StopReason, Verdict,
+    Cloud, CostFunction, FrameStatus, HistogramMode, Metric, NoiseModel, Starts, StartKind, Status, StopReason,
+    Verdict,
 )
+from ._odometry import Frame, Odometry
 from ._library import SieError, _package_version, library_version
 from ._results import Histogram, InlierEstimate, Model, Registration, Summary, TraceEntry
 
@@ -47,12 +49,15 @@ __all__ = [
     "align",
     "Context",
     "CostFunction",
+    "Frame",
+    "FrameStatus",
     "HistogramMode",
     "Histogram",
     "InlierEstimate",
     "Metric",
     "Model",
     "NoiseModel",
+    "Odometry",
     "Registration",
     "SieError",
     "StartKind",

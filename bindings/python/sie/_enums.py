@@ -95,6 +95,16 @@ class StartKind(_NamedEnum):
     PERIOD_SHIFT = 6  # a repeating scene's rival pose (another start shifted by one period)
 
 
+class FrameStatus(_NamedEnum):
+    """What became of a frame given to Odometry.register_frame."""
+
+    FIRST = 0  # the first usable frame: its sensor is the world frame
+    ACCEPTED = 1  # registered GOOD onto the last accepted frame: the pose moved
+    REPEATED = 2  # bit for bit the last accepted frame again: ignored
+    NOT_GOOD = 3  # registered, verdict not GOOD: ignored
+    JUMPED = 4  # GOOD, but (a motion known) further from the guess than the frame's median range
+
+
 class Cloud(_NamedEnum):
     SOURCE = 0
     TARGET = 1

@@ -94,6 +94,7 @@ PROGRESS_FN = ctypes.CFUNCTYPE(ctypes.c_int32, ctypes.c_void_p, ctypes.POINTER(s
 
 _ctx = ctypes.c_void_p
 _target = ctypes.c_void_p
+_odometry = ctypes.c_void_p
 
 # name: (restype, argtypes)
 _SIGNATURES = {
@@ -165,6 +166,18 @@ _SIGNATURES = {
         status_t,
         [_ctx, c_double_p, ctypes.c_size_t, ctypes.c_size_t, _target, c_double_p, c_double_p],
     ),
+    "sie_context_odometry_new": (status_t, [_ctx, ctypes.POINTER(_odometry)]),
+    "sie_context_odometry_register_frame": (
+        status_t,
+        [_ctx, _odometry, c_float_p, ctypes.c_size_t, ctypes.c_size_t, c_double_p, ctypes.POINTER(ctypes.c_uint32)],
+    ),
+    "sie_context_odometry_register_frame_d": (
+        status_t,
+        [_ctx, _odometry, c_double_p, ctypes.c_size_t, ctypes.c_size_t, c_double_p, ctypes.POINTER(ctypes.c_uint32)],
+    ),
+    "sie_odometry_skip_frame": (None, [_odometry]),
+    "sie_odometry_pose": (status_t, [_odometry, c_double_p]),
+    "sie_odometry_free": (None, [_odometry]),
     "sie_context_get_summary": (status_t, [_ctx, ctypes.POINTER(sie_summary)]),
     "sie_context_get_inlier_probabilities": (status_t, [_ctx, c_double_p, ctypes.c_size_t, c_size_t_p]),
     "sie_context_get_correspondences": (

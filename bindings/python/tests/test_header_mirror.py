@@ -152,6 +152,7 @@ PYTHON_ENUMS = {
     "sie_verdict": (sie.Verdict, "SIE_VERDICT_"),
     "sie_start_kind": (sie.StartKind, "SIE_START_KIND_"),
     "sie_cloud": (sie.Cloud, "SIE_CLOUD_"),
+    "sie_frame_status": (sie.FrameStatus, "SIE_FRAME_STATUS_"),
 }
 
 

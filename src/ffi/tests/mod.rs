@@ -6,6 +6,7 @@
 mod boundary;
 mod estimate;
 mod inputs;
+mod odometry;
 mod results;
 mod settings;
 mod status_and_enums;

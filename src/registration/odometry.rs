@@ -1,0 +1,249 @@
+//! Odometry: a sensor's frames registered one after another, each onto the last frame whose
+//! registration was GOOD, from a constant-velocity guess.
+//!
+//! A bad frame (no usable point, input a registration refuses, the same frame sent again, a
+//! result not called GOOD) gets its own status and changes nothing: the next frame registers
+//! onto the last accepted one, from the last accepted pose, as if the bad frame had not come.
+
+use std::hash::{DefaultHasher, Hash, Hasher};
+
+use nalgebra::Matrix4;
+
+use crate::error::Error;
+use crate::geometry::{length, orthonormalised, rotation_angle, rotation_part, translation_part};
+use crate::median::median;
+use crate::point::Point;
+use crate::registration::clouds::register_clouds_to;
+use crate::registration::config::RegistrationConfig;
+use crate::registration::hooks::Hooks;
+use crate::registration::result::{RegistrationResult, Verdict};
+use crate::registration::target::{PrepareOptions, PreparedTarget};
+
+/// What became of one frame given to [`Odometry::register_frame`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrameStatus {
+    /// The first usable frame: it fixes the world frame (its pose is the odometry's start).
+    First,
+    /// Registered onto the last accepted frame with a GOOD verdict; its pose is the new one.
+    Accepted,
+    /// Bit for bit the last accepted frame again (a driver that sent it twice): ignored.
+    Repeated,
+    /// Refused as input (`FrameOutcome::error` says why: no point left after dropping
+    /// invalid ones, a non-finite coordinate the config rejects, memory): ignored.
+    InputRejected,
+    /// Registered, but the verdict is not GOOD (`FrameOutcome::result` has it): the pose is
+    /// not trusted and the frame is ignored (a jump, a frame from elsewhere, a degenerate view).
+    NotGood,
+    /// Registered GOOD, but, once a motion has been measured, further from the constant-velocity
+    /// guess than the frame's points are from its sensor (median range): tracking cannot explain
+    /// such a jump (a frame from elsewhere, a clock or driver fault), so it is ignored.
+    Jumped,
+}
+
+/// One frame's status, its pose when it has one, and the registration behind it.
+#[derive(Clone, Debug)]
+pub struct FrameOutcome {
+    /// What became of the frame.
+    pub status: FrameStatus,
+    /// T_world_sensor of this frame: for `First` and `Accepted` only.
+    pub pose: Option<Matrix4<f64>>,
+    /// T_world_sensor the constant-velocity model predicts for this frame (the last accepted
+    /// pose moved by the last accepted motion once per frame since): where the registration
+    /// started, and the frame's best estimate when it was set aside; for a repeat, the last
+    /// accepted pose. `None` for the first frame and frames refused before it.
+    pub predicted_pose: Option<Matrix4<f64>>,
+    /// The frame's registration onto the last accepted frame (`Accepted` and `NotGood`).
+    pub result: Option<RegistrationResult>,
+    /// Why an `InputRejected` frame was refused.
+    pub error: Option<Error>,
+}
+
+/// The last accepted frame, prepared as the next frame's target.
+struct Keyframe {
+    target: PreparedTarget,
+    fingerprint: u64,
+    /// Median distance of its points from its sensor.
+    median_range: f64,
+}
+
+impl Keyframe {
+    fn new(frame: &[Point], fingerprint: u64, options: &PrepareOptions) -> Result<Self, Error> {
+        let target = PreparedTarget::new(frame, None, options)?;
+        let mut ranges: Vec<f64> = frame
+            .iter()
+            .filter(|p| p.iter().all(|c| c.is_finite()) && **p != [0.0; 3])
+            .map(length)
+            .collect();
+        Ok(Keyframe {
+            target,
+            fingerprint,
+            median_range: median(&mut ranges).unwrap_or(0.0),
+        })
+    }
+
+    /// How far `transform` moves this frame's points from where `guess` puts them, at the
+    /// median range: the sensor's shift plus the turn's arc.
+    fn displacement(&self, transform: &Matrix4<f64>, guess: &Matrix4<f64>) -> f64 {
+        let change = guess.try_inverse().unwrap_or_else(Matrix4::identity) * transform;
+        translation_part(&change).norm() + rotation_angle(&rotation_part(&change)) * self.median_range
+    }
+}
+
+/// Frame-to-frame odometry with SIE: no threshold, and a frame whose registration is not GOOD
+/// never moves the trajectory.
+///
+/// Each frame registers onto the last accepted frame from a constant-velocity guess (the last
+/// accepted motion, once per frame since; no motion before one is measured). Poses are
+/// T_world_sensor with the first usable frame's sensor as the world.
+pub struct Odometry {
+    config: RegistrationConfig,
+    options: PrepareOptions,
+    keyframe: Option<Keyframe>,
+    /// T_world_sensor of the last accepted frame.
+    pose: Matrix4<f64>,
+    /// The last accepted frame-to-frame motion, T_previous_current (`None` before one).
+    velocity: Option<Matrix4<f64>>,
+    /// Frames since the last accepted one that were not repeats (the guess's steps).
+    frames_since_accepted: u32,
+}
+
+impl Odometry {
+    /// Odometry registering with `config` (checked now). Sensor frames mark missing returns
+    /// with NaN or 0 0 0: set `config.non_finite` and `config.skip_origin` to drop them
+    /// ([`Odometry::sensor_config`] does).
+    pub fn new(config: RegistrationConfig) -> Result<Self, Error> {
+        config.validate()?;
+        Ok(Odometry {
+            options: PrepareOptions::from_config(&config),
+            config,
+            keyframe: None,
+            pose: Matrix4::identity(),
+            velocity: None,
+            frames_since_accepted: 0,
+        })
+    }
+
+    /// The default registration, dropping the points sensors write for missing returns (NaN
+    /// or infinite coordinates, and 0 0 0).
+    pub fn sensor_config() -> RegistrationConfig {
+        RegistrationConfig {
+            non_finite: crate::point::NonFinite::Skip,
+            skip_origin: true,
+            ..RegistrationConfig::default()
+        }
+    }
+
+    /// T_world_sensor of the last accepted frame (the identity before the first).
+    pub fn pose(&self) -> Matrix4<f64> {
+        self.pose
+    }
+
+    /// The registration settings every frame uses.
+    pub fn config(&self) -> &RegistrationConfig {
+        &self.config
+    }
+
+    /// A frame that never reached [`Odometry::register_frame`] (the driver dropped it, or its
+    /// input could not be read): the next frame's guess moves one frame further.
+    pub fn skip_frame(&mut self) {
+        if self.keyframe.is_some() {
+            self.frames_since_accepted = self.frames_since_accepted.saturating_add(1);
+        }
+    }
+
+    /// Registers the next frame (points in its sensor's frame). Input the registration refuses
+    /// is a status, not an error: the odometry goes on as if the frame had not come.
+    pub fn register_frame(&mut self, frame: &[Point], hooks: Hooks<'_>) -> FrameOutcome {
+        let fingerprint = fingerprint_of(frame);
+        let Some(keyframe) = &self.keyframe else {
+            return match Keyframe::new(frame, fingerprint, &self.options) {
+                Ok(keyframe) => {
+                    self.keyframe = Some(keyframe);
+                    outcome(FrameStatus::First, Some(self.pose), None, None, None)
+                }
+                Err(error) => outcome(FrameStatus::InputRejected, None, None, None, Some(error)),
+            };
+        };
+        if keyframe.fingerprint == fingerprint {
+            return outcome(FrameStatus::Repeated, None, Some(self.pose), None, None);
+        }
+        let steps = self.frames_since_accepted + 1;
+        let velocity = self.velocity.unwrap_or_else(Matrix4::identity);
+        let guess = (0..steps).fold(Matrix4::identity(), |m, _| orthonormalised(&(m * velocity)));
+        let predicted = Some(orthonormalised(&(self.pose * guess)));
+        let result = match register_clouds_to(frame, &keyframe.target, Some(&guess), &self.config, hooks) {
+            Ok(result) => result,
+            Err(error) => {
+                self.skip_frame();
+                return outcome(FrameStatus::InputRejected, None, predicted, None, Some(error));
+            }
+        };
+        if result.quality.verdict != Verdict::Good {
+            self.frames_since_accepted = steps;
+            return outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
+        }
+        if self.velocity.is_some() && keyframe.displacement(&result.transform, &guess) > keyframe.median_range
+        {
+            self.frames_since_accepted = steps;
+            return outcome(FrameStatus::Jumped, None, predicted, Some(result), None);
+        }
+        // The frame passed its registration, so it has points a target can be built on; a
+        // refusal here is memory, and the frame is then not accepted either.
+        let next = match Keyframe::new(frame, fingerprint, &self.options) {
+            Ok(next) => next,
+            Err(error) => {
+                self.frames_since_accepted = steps;
+                return outcome(
+                    FrameStatus::InputRejected,
+                    None,
+                    predicted,
+                    Some(result),
+                    Some(error),
+                );
+            }
+        };
+        self.keyframe = Some(next);
+        // The motion over a gap of several frames is no per-frame velocity: keep the last one.
+        if steps == 1 {
+            self.velocity = Some(result.transform);
+        }
+        self.frames_since_accepted = 0;
+        self.pose = orthonormalised(&(self.pose * result.transform));
+        outcome(
+            FrameStatus::Accepted,
+            Some(self.pose),
+            predicted,
+            Some(result),
+            None,
+        )
+    }
+}
+
+fn outcome(
+    status: FrameStatus,
+    pose: Option<Matrix4<f64>>,
+    predicted_pose: Option<Matrix4<f64>>,
+    result: Option<RegistrationResult>,
+    error: Option<Error>,
+) -> FrameOutcome {
+    FrameOutcome {
+        status,
+        pose,
+        predicted_pose,
+        result,
+        error,
+    }
+}
+
+/// A hash of the frame's exact coordinates (−0.0 and 0.0 apart: a resent frame is bit for bit
+/// the same).
+fn fingerprint_of(frame: &[Point]) -> u64 {
+    let mut hasher = DefaultHasher::new();
+    frame.len().hash(&mut hasher);
+    for p in frame {
+        for c in p {
+            c.to_bits().hash(&mut hasher);
+        }
+    }
+    hasher.finish()
+}

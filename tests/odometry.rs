@@ -1,0 +1,150 @@
+//! Odometry over a synthetic room trajectory with bad frames mixed in: each bad frame gets its
+//! status, changes nothing, and the trajectory after it is as without it.
+
+use nalgebra::{Matrix4, Rotation3, Translation3};
+use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
+use sie::synthetic::room_trajectory;
+use sie::{FrameStatus, Hooks, Odometry, Point, Verdict};
+
+/// The trajectory's per-frame motion at 40 frames: about 21 cm and 9°.
+const FRAMES: usize = 40;
+
+/// (rotation in degrees, translation) of `estimate` against `truth`.
+fn error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
+    let e = truth.try_inverse().unwrap() * estimate;
+    (
+        rotation_angle(&rotation_part(&e)).to_degrees(),
+        translation_part(&e).norm(),
+    )
+}
+
+#[test]
+fn bad_frames_get_a_status_and_the_trajectory_goes_on() {
+    let trajectory = room_trajectory(FRAMES, 4_000, 0.01, 7);
+    let frames = &trajectory.frames;
+    let world = trajectory.poses[0].try_inverse().unwrap();
+    let shifted: Vec<Point> = frames[5].iter().map(|p| [p[0] + 10.0, p[1], p[2]]).collect();
+    let invalid: Vec<Point> = frames[7]
+        .iter()
+        .enumerate()
+        .map(|(i, p)| if i % 2 == 0 { [f64::NAN; 3] } else { [0.0; 3] }.map(|c| c + 0.0 * p[0]))
+        .collect();
+    // (what is sent, the true frame it stands for if good, the status expected)
+    let sent: Vec<(&[Point], Option<usize>, &[FrameStatus])> = vec![
+        (&[], None, &[FrameStatus::InputRejected]),
+        (&frames[0], Some(0), &[FrameStatus::First]),
+        (&frames[1], Some(1), &[FrameStatus::Accepted]),
+        (&frames[2], Some(2), &[FrameStatus::Accepted]),
+        (&[], None, &[FrameStatus::InputRejected]),
+        (&frames[4], Some(4), &[FrameStatus::Accepted]),
+        (&frames[4], None, &[FrameStatus::Repeated]),
+        (&shifted, None, &[FrameStatus::Jumped, FrameStatus::NotGood]),
+        (&frames[6], Some(6), &[FrameStatus::Accepted]),
+        (&invalid, None, &[FrameStatus::InputRejected]),
+        (&frames[8], Some(8), &[FrameStatus::Accepted]),
+        (&frames[9], Some(9), &[FrameStatus::Accepted]),
+    ];
+    let mut odometry = Odometry::new(Odometry::sensor_config()).unwrap();
+    for (k, (frame, truth, expected)) in sent.into_iter().enumerate() {
+        let before = odometry.pose();
+        let outcome = odometry.register_frame(frame, Hooks::default());
+        assert!(
+            expected.contains(&outcome.status),
+            "frame {k}: {:?}, expected one of {expected:?} ({:?}, verdict {:?})",
+            outcome.status,
+            outcome.error,
+            outcome.result.as_ref().map(|r| r.quality.verdict)
+        );
+        match truth {
+            Some(i) => {
+                let pose = outcome.pose.expect("a good frame has a pose");
+                assert_eq!(pose, odometry.pose());
+                let (degrees, metres) = error(&pose, &(world * trajectory.poses[i]));
+                assert!(
+                    degrees < 0.1 && metres < 0.005,
+                    "frame {k} (truth {i}): {degrees:.3}° / {metres:.4} m"
+                );
+            }
+            None => {
+                assert!(outcome.pose.is_none(), "frame {k}: a bad frame has no pose");
+                assert_eq!(
+                    odometry.pose(),
+                    before,
+                    "frame {k}: a bad frame moved the trajectory"
+                );
+            }
+        }
+        if outcome.status == FrameStatus::InputRejected {
+            assert!(outcome.error.is_some(), "frame {k}: a refused frame says why");
+        }
+    }
+}
+
+/// A bad configuration is refused when the odometry is made, not at its first frame.
+#[test]
+fn a_bad_config_is_refused_up_front() {
+    let config = sie::RegistrationConfig {
+        max_iterations: 0,
+        ..Odometry::sensor_config()
+    };
+    let error = Odometry::new(config).err().expect("max_iterations 0 is refused");
+    assert!(error.to_string().contains("max_iterations"), "{error}");
+}
+
+/// Once a motion is known, a frame moved 4 m (or turned 90°) in its sensor's frame registers GOOD
+/// onto the last one, far from where tracking can put it: Jumped, and the next true frame
+/// continues the trajectory. Before a motion is known, any motion is taken.
+#[test]
+fn a_frame_that_jumps_is_set_aside() {
+    let trajectory = room_trajectory(FRAMES, 4_000, 0.01, 7);
+    let frames = &trajectory.frames;
+    let world = trajectory.poses[0].try_inverse().unwrap();
+    let jumps = [
+        ("4 m along x", Translation3::new(4.0, 0.0, 0.0).to_homogeneous()),
+        (
+            "90° about z",
+            Rotation3::from_euler_angles(0.0, 0.0, 90f64.to_radians()).to_homogeneous(),
+        ),
+    ];
+    let register =
+        |odometry: &mut Odometry, frame: &[Point]| odometry.register_frame(frame, Hooks::default());
+    for (name, jump) in jumps {
+        let moved =
+            |frame: &[Point]| -> Vec<Point> { frame.iter().map(|p| transform_point(&jump, p)).collect() };
+        let mut odometry = Odometry::new(Odometry::sensor_config()).unwrap();
+        assert_eq!(
+            register(&mut odometry, &frames[0]).status,
+            FrameStatus::First,
+            "{name}"
+        );
+        assert_eq!(
+            register(&mut odometry, &frames[1]).status,
+            FrameStatus::Accepted,
+            "{name}"
+        );
+        let before = odometry.pose();
+        let outcome = register(&mut odometry, &moved(&frames[2]));
+        assert_eq!(outcome.status, FrameStatus::Jumped, "{name}");
+        assert_eq!(
+            outcome.result.map(|r| r.quality.verdict),
+            Some(Verdict::Good),
+            "{name}"
+        );
+        assert_eq!(odometry.pose(), before, "{name}");
+        let next = register(&mut odometry, &frames[3]);
+        assert_eq!(next.status, FrameStatus::Accepted, "{name}");
+        let (degrees, metres) = error(&next.pose.unwrap(), &(world * trajectory.poses[3]));
+        assert!(
+            degrees < 0.1 && metres < 0.005,
+            "{name}: {degrees:.3}° / {metres:.4} m"
+        );
+        // The same jump as the second frame, before any motion is known: taken as the motion.
+        let mut fresh = Odometry::new(Odometry::sensor_config()).unwrap();
+        register(&mut fresh, &frames[0]);
+        assert_eq!(
+            register(&mut fresh, &moved(&frames[1])).status,
+            FrameStatus::Accepted,
+            "{name}"
+        );
+    }
+}
