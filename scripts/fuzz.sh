@@ -23,7 +23,7 @@ passed=0
 # Each target with its executions per RUNS/8, from what one execution costs (this machine, RUNS =
 # 20000: ~1.5 min each; wide residual matrices and ICP are the slow ones).
 for entry in estimate_inliers:1 register_correspondences:4 register_clouds:1 cloud_readers:80 prepared_target:1 \
-  starts_and_warm_starts:2; do
+  starts_and_warm_starts:2 odometry_frames:1; do
   target=${entry%%:*}
   if [ -n "${SIE_FUZZ_EXPLORE_SECONDS:-}" ]; then
     echo "== fuzz $target for ${SIE_FUZZ_EXPLORE_SECONDS}s"
