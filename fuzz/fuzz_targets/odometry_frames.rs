@@ -36,11 +36,26 @@ fuzz_target!(|data: &[u8]| {
     unsafe {
         let ctx = sie_context_new();
         assert_eq!(sie_context_set_threads(ctx, 1), sie_status::Ok);
-        assert_eq!(sie_context_set_skip_non_finite(ctx, settings & 8 != 0), sie_status::Ok);
-        assert_eq!(sie_context_set_skip_origin(ctx, settings & 16 != 0), sie_status::Ok);
-        assert_eq!(sie_context_set_metric(ctx, u32::from((settings >> 5) & 1)), sie_status::Ok);
-        assert_eq!(sie_context_set_starts(ctx, u32::from((settings >> 6) & 1)), sie_status::Ok);
-        assert_eq!(sie_context_set_max_iterations(ctx, if settings & 128 != 0 { 6 } else { 2 }), sie_status::Ok);
+        assert_eq!(
+            sie_context_set_skip_non_finite(ctx, settings & 8 != 0),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_skip_origin(ctx, settings & 16 != 0),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_metric(ctx, u32::from((settings >> 5) & 1)),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_starts(ctx, u32::from((settings >> 6) & 1)),
+            sie_status::Ok
+        );
+        assert_eq!(
+            sie_context_set_max_iterations(ctx, if settings & 128 != 0 { 6 } else { 2 }),
+            sie_status::Ok
+        );
         let mut odometry = null_mut();
         assert_eq!(sie_context_odometry_new(ctx, &mut odometry), sie_status::Ok);
         let mut pose_now = [0.0; 16];
@@ -81,12 +96,20 @@ fuzz_target!(|data: &[u8]| {
                         is_registration_error(result) || result == sie_status::OutOfMemory,
                         "{result:?}: {message}"
                     );
-                    assert_eq!((pose, status), ([UNTOUCHED; 16], u32::MAX), "outputs written on error");
+                    assert_eq!(
+                        (pose, status),
+                        ([UNTOUCHED; 16], u32::MAX),
+                        "outputs written on error"
+                    );
                     assert_eq!(stored, pose_now, "a refused frame moved the trajectory");
                     continue;
                 }
-                let moved = status == sie_frame_status::First as u32 || status == sie_frame_status::Accepted as u32;
-                assert!(status <= sie_frame_status::Jumped as u32, "unknown frame status {status}");
+                let moved =
+                    status == sie_frame_status::First as u32 || status == sie_frame_status::Accepted as u32;
+                assert!(
+                    status <= sie_frame_status::Jumped as u32,
+                    "unknown frame status {status}"
+                );
                 if moved {
                     assert!(pose.iter().all(|v| v.is_finite()), "{pose:?}");
                     assert_eq!(stored, pose, "the pose written is not the odometry's");
