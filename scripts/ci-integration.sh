@@ -381,9 +381,11 @@ fi
 
 # README.md's samples are outputs of their commands: rerun each with what this script built
 # (examples-cpp, the venv with Open3D and Dask) and fail on drift, with a diff.
+# The installed CLI is the checkout's (cargo would rebuild it here: the Python steps rebuilt
+# the library without the CLI's features in CMake's target directory).
 readme_samples() {
   SIE_DATA_DIR="$data" SIE_SAMPLE_PYTHON="$venv/bin/python" SIE_SAMPLE_EXAMPLES="$build/examples" \
-    python3 scripts/readme-samples.py --check
+    SIE_SAMPLE_SIE="$prefix/bin/sie" python3 scripts/readme-samples.py --check
 }
 step "README.md samples are their commands' output (scripts/readme-samples.py --check)" readme_samples
 

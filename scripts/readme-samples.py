@@ -19,7 +19,9 @@ are those of the machine that last changed a result.
 Environment: SIE_DATA_DIR (the scans, default ../shared/data; samples that need them are
 skipped with a message when absent), SIE_SAMPLE_PYTHON (a Python with sie, open3d, small_gicp
 and dask, for the Python samples), SIE_SAMPLE_EXAMPLES (the examples-cpp build directory, for
-compare_pcl). A sample whose requirement is missing is skipped, never failed.
+compare_pcl), SIE_SAMPLE_SIE (the CLI built from this checkout, for example CMake's
+install of it; default: cargo builds target/release/sie). A sample whose requirement is
+missing is skipped, never failed.
 """
 
 from __future__ import annotations
@@ -79,7 +81,9 @@ def data_scratch(scratch: Path) -> Path:
 
 
 def sie_binary() -> str:
-    """The CLI built from this checkout (cargo decides whether anything needs rebuilding)."""
+    """The CLI built from this checkout: SIE_SAMPLE_SIE (e.g. CMake's install of it), else cargo's."""
+    if os.environ.get("SIE_SAMPLE_SIE"):
+        return str(Path(os.environ["SIE_SAMPLE_SIE"]).resolve())
     sh(["cargo", "build", "--release", "--locked", "--quiet", "--bin", "sie"], ROOT)
     target = Path(os.environ.get("CARGO_TARGET_DIR") or ROOT / "target")
     return str((ROOT / target / "release" / "sie").resolve())
@@ -89,7 +93,8 @@ def sie_binary() -> str:
 
 
 def run_demo(sample: Sample, scratch: Path) -> str:
-    out, _, _ = sh(["cargo", "run", "--release", "--locked", "--quiet", "--", "demo"], ROOT)
+    # `cargo run --release -- demo` is `sie demo` with the binary cargo builds from this checkout.
+    out, _, _ = sh([sie_binary(), "demo"], ROOT)
     return out
 
 
