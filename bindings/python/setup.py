@@ -6,6 +6,10 @@ copies target/release/libsie.so into the package as sie/libsie.so.<major>.<minor
 tagged py3-none-<platform>: the package is pure Python over ctypes, so one wheel serves every
 CPython 3 on that platform, and it needs neither Rust nor a C compiler to install.
 
+The sdist (`python -m build --sdist bindings/python`) carries the Rust sources under rust/
+(Cargo.toml without the repository's examples, Cargo.lock, build.rs, cbindgen.toml, src/,
+include/), so `pip install sie-<version>.tar.gz` builds the library with cargo outside a checkout.
+
 Environment: CARGO (the cargo to run, default `cargo` on PATH), CARGO_TARGET_DIR (reuse another
 build's target directory, e.g. CMake's build/sie/cargo).
 """
@@ -20,6 +24,7 @@ from pathlib import Path
 
 from setuptools import setup
 from setuptools.command.build_py import build_py
+from setuptools.command.sdist import sdist
 from setuptools.dist import Distribution
 
 try:  # setuptools >= 70 has its own; older ones use the wheel package's
@@ -28,8 +33,11 @@ except ImportError:  # pragma: no cover - depends on the build environment
     from wheel.bdist_wheel import bdist_wheel
 
 HERE = Path(__file__).resolve().parent
-REPOSITORY = HERE.parent.parent
+# An unpacked sdist has the Rust sources in rust/; a checkout has them two levels up.
+REPOSITORY = HERE / "rust" if (HERE / "rust" / "Cargo.toml").is_file() else HERE.parent.parent
 MANIFEST = REPOSITORY / "Cargo.toml"
+# What cargo needs to build the library, copied into the sdist's rust/ (files and directories).
+RUST_SOURCES = ["Cargo.toml", "Cargo.lock", "build.rs", "cbindgen.toml", "src", "include"]
 
 
 def library_version() -> str:
@@ -86,6 +94,37 @@ class platform_wheel(bdist_wheel):
         return "py3", "none", platform
 
 
+def without_examples(manifest: str) -> str:
+    """Cargo.toml without its [[example]] tables: their sources are not in the sdist, and cargo
+    refuses a manifest that names a target whose file is missing."""
+    kept, skipping = [], False
+    for line in manifest.splitlines(keepends=True):
+        if line.startswith("["):
+            skipping = line.strip() == "[[example]]"
+        if not skipping:
+            kept.append(line)
+    return "".join(kept)
+
+
+class sdist_with_rust(sdist):
+    """sdist, plus the Rust sources under rust/ so that installing it builds libsie with cargo."""
+
+    def make_release_tree(self, base_dir: str, files) -> None:
+        super().make_release_tree(base_dir, files)
+        rust = Path(base_dir) / "rust"
+        for name in RUST_SOURCES:
+            source = REPOSITORY / name
+            if not source.exists():
+                raise SystemExit(f"{source} not found: the sdist is made from a checkout of the sie repository")
+            if source.is_dir():
+                shutil.copytree(source, rust / name, dirs_exist_ok=True)
+            else:
+                rust.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(source, rust / name)
+        cargo_toml = rust / "Cargo.toml"
+        cargo_toml.write_text(without_examples(cargo_toml.read_text()))
+
+
 class BinaryDistribution(Distribution):
     def has_ext_modules(self) -> bool:  # install into platlib, tag as a platform wheel
         return True
@@ -94,5 +133,5 @@ class BinaryDistribution(Distribution):
 setup(
     version=VERSION,
     distclass=BinaryDistribution,
-    cmdclass={"build_py": build_py_with_cargo, "bdist_wheel": platform_wheel},
+    cmdclass={"build_py": build_py_with_cargo, "bdist_wheel": platform_wheel, "sdist": sdist_with_rust},
 )

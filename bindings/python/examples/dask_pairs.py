@@ -167,6 +167,9 @@ def register_pair(spec: dict) -> dict:
         "dataset": spec["dataset"], "source": spec["source"], "target": spec["target"],
         "rotation_error_deg": round(rotation, 5), "translation_error_m": round(translation, 6),
         "success": rotation <= bar_degrees and translation <= bar_metres,
+        # What sie itself says of the pose: a converged run can still be wrong, and the verdict
+        # is what tells (good: use it; doubtful: check it; unsupported: reject it).
+        "verdict": result.summary.verdict.name.lower(),
         "stop_reason": result.summary.stop_reason.name.lower(), "iterations": result.summary.iterations,
         "inlier_fraction": round(result.summary.inlier_fraction, 4), "seconds": round(seconds, 4),
         "transform": result.transform.tolist(), "worker": f"{socket.gethostname()}:{os.getpid()}",
@@ -179,7 +182,7 @@ def run_on(client, specs: List[dict]) -> List[dict]:
     return client.gather(futures)
 
 
-COLUMNS = ["dataset", "source", "target", "rotation_error_deg", "translation_error_m", "success", "stop_reason",
+COLUMNS = ["dataset", "source", "target", "rotation_error_deg", "translation_error_m", "success", "verdict", "stop_reason",
            "iterations", "inlier_fraction", "seconds", "worker"]
 
 

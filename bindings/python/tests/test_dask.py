@@ -45,6 +45,7 @@ def test_local_cluster_gathers_one_table_equal_to_serial_runs(specs):
         np.testing.assert_array_equal(np.array(row["transform"]), np.array(serial["transform"]))
         assert row["stop_reason"] == "converged", row
         assert row["success"], row  # within the real-scan table's bar (1 deg, 2 mm)
+        assert row["verdict"] == "good", row  # right, and sie says so without the ground truth
     bunny = next(r for r in rows if r["dataset"] == "pcl-test-bunny")
     assert bunny["rotation_error_deg"] < 1.0 and bunny["translation_error_m"] < 0.002
 
@@ -54,5 +55,6 @@ def test_example_main_on_two_worker_processes(specs, capsys):
     out, err = capsys.readouterr()
     lines = out.strip().splitlines()
     assert lines[0].startswith("dataset,source,target,rotation_error_deg")
+    assert "verdict" in lines[0].split(",")
     assert len(lines) == 3
     assert "2 pairs on LocalCluster, 2 worker(s) x 1 thread(s)" in err
