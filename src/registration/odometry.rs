@@ -179,12 +179,12 @@ impl Odometry {
             }
         };
         if result.quality.verdict != Verdict::Good {
-            self.frames_since_accepted = steps;
+            self.skip_frame();
             return outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
         }
         if self.velocity.is_some() && keyframe.displacement(&result.transform, &guess) > keyframe.median_range
         {
-            self.frames_since_accepted = steps;
+            self.skip_frame();
             return outcome(FrameStatus::Jumped, None, predicted, Some(result), None);
         }
         // The frame passed its registration, so it has points a target can be built on; a
@@ -192,7 +192,7 @@ impl Odometry {
         let next = match Keyframe::new(frame, fingerprint, &self.options) {
             Ok(next) => next,
             Err(error) => {
-                self.frames_since_accepted = steps;
+                self.skip_frame();
                 return outcome(
                     FrameStatus::InputRejected,
                     None,
