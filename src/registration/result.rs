@@ -45,6 +45,9 @@ pub enum StartKind {
     /// The result of another start shifted by one period of structure its inliers repeat
     /// (a row of pillars, `search::period_shifts`), then SIE (ICP).
     PeriodShift,
+    /// A pose proposed by matching FPFH descriptors of the two clouds (`Starts::Global`), then
+    /// SIE (ICP).
+    FeatureMatch,
 }
 
 /// One IRLS iteration, for plotting convergence.
