@@ -97,6 +97,9 @@ enum class Starts : std::uint32_t {
     Automatic = SIE_STARTS_AUTOMATIC,
     /** One run from the initial guess (the paper's method). */
     InitialGuess = SIE_STARTS_INITIAL_GUESS,
+    /** No guess needed: FPFH descriptor matches propose the starts (costs the descriptors and
+     *  up to 5 runs; clouds too small or flat are refused with Status::TooFewPoints). */
+    Global = SIE_STARTS_GLOBAL,
 };
 
 /** How far to trust a registration (sie_verdict; Summary::verdict). */
@@ -120,6 +123,7 @@ enum class StartKind : std::uint32_t {
     WarmStart = SIE_START_KIND_WARM_START,
     HalfTurn = SIE_START_KIND_HALF_TURN,
     PeriodShift = SIE_START_KIND_PERIOD_SHIFT,
+    FeatureMatch = SIE_START_KIND_FEATURE_MATCH,
 };
 
 enum class StopReason : std::uint32_t {
@@ -186,6 +190,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "half turn";
     case StartKind::PeriodShift:
         return "period shift";
+    case StartKind::FeatureMatch:
+        return "feature match";
     }
     return "unknown";
 }

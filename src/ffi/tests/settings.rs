@@ -62,6 +62,12 @@ fn setters_store_valid_values() {
             sie_status::Ok
         );
         assert_eq!(ctx.config().starts, Starts::InitialGuess);
+        assert_eq!(
+            sie_context_set_starts(ctx.0, sie_starts::Global as u32),
+            sie_status::Ok
+        );
+        assert_eq!(ctx.config().starts, Starts::Global);
+        assert_eq!(sie_context_set_starts(ctx.0, 3), sie_status::InvalidArgument);
         assert_eq!(sie_context_set_starts(ctx.0, 0), sie_status::Ok);
         assert_eq!(ctx.config().starts, Starts::Automatic);
         assert_eq!(sie_context_set_starts(ctx.0, 1), sie_status::Ok);
