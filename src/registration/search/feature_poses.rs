@@ -45,7 +45,10 @@ pub(crate) fn feature_poses(
 ) -> Result<FeaturePoses, Error> {
     // Before anything is built: the descriptors are bounded by MAX_KEYPOINTS per cloud.
     memory::ensure_available(
-        2 * MAX_KEYPOINTS * BYTES_PER_KEYPOINT,
+        memory::global_stage_bytes(
+            source.len() + target.len(),
+            2 * MAX_KEYPOINTS * BYTES_PER_KEYPOINT,
+        ),
         "the global stage's descriptors",
     )?;
     let source_index = NearestNeighbours::new(source)?;
