@@ -426,7 +426,7 @@ class Context {
         return *this;
     }
     /** Where SIE starts; Starts::Automatic (the default) runs several and keeps the most
-     * significant result. */
+     * significant result; Starts::Global needs no guess (descriptor matches propose the starts). */
     Context &set_starts(Starts starts) {
         check(sie_context_set_starts(get(), static_cast<std::uint32_t>(starts)));
         return *this;

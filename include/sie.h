@@ -580,8 +580,8 @@ typedef struct sie_summary {
      */
     uint32_t starts_run;
     /**
-     * Minimal samples drawn by the hypothesis search of correspondence registration (0 when
-     * none ran).
+     * Minimal samples drawn by the hypothesis search of correspondence registration, or of
+     * SIE_STARTS_GLOBAL on descriptor matches (0 when none ran).
      */
     uint32_t hypotheses;
     /**

@@ -373,8 +373,8 @@ pub struct sie_summary {
     /// Starts SIE was run from (1 with SIE_STARTS_INITIAL_GUESS, a baseline cost or a fixed
     /// initial beta).
     pub starts_run: u32,
-    /// Minimal samples drawn by the hypothesis search of correspondence registration (0 when
-    /// none ran).
+    /// Minimal samples drawn by the hypothesis search of correspondence registration, or of
+    /// SIE_STARTS_GLOBAL on descriptor matches (0 when none ran).
     pub hypotheses: u32,
     /// Starts whose result is the returned pose (within 3 standard errors), itself included.
     pub agreeing_starts: u32,

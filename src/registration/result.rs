@@ -196,7 +196,8 @@ pub struct Quality {
 pub struct SearchReport {
     /// Which start the transform came from.
     pub start: StartKind,
-    /// Minimal samples drawn by the hypothesis search (0 when none ran).
+    /// Minimal samples drawn by the hypothesis search (0 when none ran): on the given pairs, or
+    /// on the descriptor matches of `Starts::Global`.
     pub hypotheses: u32,
     /// Starts SIE was run from (1 without a search).
     pub starts_run: u32,
