@@ -285,7 +285,8 @@ struct Summary {
     StartKind start = StartKind::InitialGuess;
     std::uint32_t starts_run = 0;
     std::uint32_t agreeing_starts = 0;
-    /** Minimal samples of the hypothesis search (correspondences; 0 when none ran). */
+    /** Minimal samples of the hypothesis search (correspondences, or Starts::Global on descriptor
+     *  matches; 0 when none ran). */
     std::uint32_t hypotheses = 0;
     /** The largest significance among starts that ended at another pose (0: none did). */
     double runner_up_significance = 0.0;

@@ -72,7 +72,7 @@ class Starts(_NamedEnum):
 
     AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
     INITIAL_GUESS = 1  # the paper's method from the guess (again from its result if it went > 10 sigma)
-    GLOBAL = 2  # no guess needed: FPFH descriptor matches propose the starts (slower; small or flat clouds refused)
+    GLOBAL = 2  # no guess needed: descriptor matches propose the starts (slower; small or flat clouds refused)
 
 
 class Verdict(_NamedEnum):
