@@ -216,3 +216,59 @@ fn plane_normal(near: &[Vector3<f64>]) -> Option<Vector3<f64>> {
     let length = normal.norm();
     (length > 0.0).then(|| normal / length)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A wavy surface of `n` points on a `side` × `side` grid.
+    fn surface(side: usize, step: f64) -> Vec<Point> {
+        (0..side * side)
+            .map(|k| {
+                let (x, y) = ((k % side) as f64 * step, (k / side) as f64 * step);
+                [x, y, 0.2 * (x * 4.0).sin() * (y * 3.0).cos()]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_voxel_leaves_a_few_thousand_keypoints_and_never_splits_the_spacing() {
+        // 90 000 points: the voxel grows until about 2500 keypoints remain.
+        let dense = surface(300, 0.01);
+        let index = NearestNeighbours::new(&dense).unwrap();
+        let scale = DescriptorScale::choose(&dense, &index, &dense, &index, 4000).unwrap();
+        let kept = Keypoints::of(&dense, &scale).points.len();
+        assert!(
+            (1500..=4000).contains(&kept),
+            "{kept} keypoints at voxel {}",
+            scale.voxel
+        );
+        // 400 points: no voxel finer than their spacing (0.01), so at most one keypoint each.
+        let sparse = surface(20, 0.01);
+        let index = NearestNeighbours::new(&sparse).unwrap();
+        let scale = DescriptorScale::choose(&sparse, &index, &sparse, &index, 4000).unwrap();
+        assert!(scale.voxel >= 0.01 * (1.0 - 1e-9), "{}", scale.voxel);
+        // One place: no extent, no scale.
+        let point = vec![[1.0, 2.0, 3.0]; 10];
+        let index = NearestNeighbours::new(&point).unwrap();
+        assert_eq!(
+            DescriptorScale::choose(&point, &index, &point, &index, 4000),
+            None
+        );
+    }
+
+    #[test]
+    fn keypoints_are_voxel_centroids_and_normals_face_the_origin() {
+        let points = vec![[0.1, 0.1, 5.0], [0.3, 0.3, 5.0], [1.5, 0.5, 5.0]];
+        let keypoints = Keypoints::of(&points, &DescriptorScale { voxel: 1.0 }).points;
+        assert_eq!(keypoints, vec![[0.2, 0.2, 5.0], [1.5, 0.5, 5.0]]);
+        let plane: Vec<Point> = (0..100)
+            .map(|k| [(k % 10) as f64, (k / 10) as f64, 5.0])
+            .collect();
+        let index = NearestNeighbours::new(&plane).unwrap();
+        let normals = keypoint_normals(&plane, &index, 2.5, &Workers::new(2).unwrap());
+        for n in normals {
+            assert!((n[2] + 1.0).abs() < 1e-9, "{n:?}");
+        }
+    }
+}
