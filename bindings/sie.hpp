@@ -97,6 +97,9 @@ enum class Starts : std::uint32_t {
     Automatic = SIE_STARTS_AUTOMATIC,
     /** One run from the initial guess (the paper's method). */
     InitialGuess = SIE_STARTS_INITIAL_GUESS,
+    /** No guess needed: FPFH descriptor matches propose the starts (costs the descriptors and
+     *  up to 5 runs; clouds too small or flat are refused with Status::TooFewPoints). */
+    Global = SIE_STARTS_GLOBAL,
 };
 
 /** How far to trust a registration (sie_verdict; Summary::verdict). */
@@ -120,6 +123,7 @@ enum class StartKind : std::uint32_t {
     WarmStart = SIE_START_KIND_WARM_START,
     HalfTurn = SIE_START_KIND_HALF_TURN,
     PeriodShift = SIE_START_KIND_PERIOD_SHIFT,
+    FeatureMatch = SIE_START_KIND_FEATURE_MATCH,
 };
 
 /** What became of a frame given to Context::register_frame. A frame refused as input throws
@@ -196,6 +200,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "half turn";
     case StartKind::PeriodShift:
         return "period shift";
+    case StartKind::FeatureMatch:
+        return "feature match";
     }
     return "unknown";
 }
@@ -289,7 +295,8 @@ struct Summary {
     StartKind start = StartKind::InitialGuess;
     std::uint32_t starts_run = 0;
     std::uint32_t agreeing_starts = 0;
-    /** Minimal samples of the hypothesis search (correspondences; 0 when none ran). */
+    /** Minimal samples of the hypothesis search (correspondences, or Starts::Global on descriptor
+     *  matches; 0 when none ran). */
     std::uint32_t hypotheses = 0;
     /** The largest significance among starts that ended at another pose (0: none did). */
     double runner_up_significance = 0.0;
@@ -467,7 +474,7 @@ class Context {
         return *this;
     }
     /** Where SIE starts; Starts::Automatic (the default) runs several and keeps the most
-     * significant result. */
+     * significant result; Starts::Global needs no guess (descriptor matches propose the starts). */
     Context &set_starts(Starts starts) {
         check(sie_context_set_starts(get(), static_cast<std::uint32_t>(starts)));
         return *this;

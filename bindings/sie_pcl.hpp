@@ -139,7 +139,8 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *   below are those of one run (a second run's updates follow in order; it has its own cap, as
  *   every start does). context().set_starts(sie::Starts::Automatic) runs SIE from
  *   several starts instead (the updates of every start are then reported in order, and the
- *   iteration cap holds per start).
+ *   iteration cap holds per start); context().set_starts(sie::Starts::Global) needs no guess
+ *   (FPFH descriptor matches propose the starts; slower, and small or flat clouds are refused).
  * - Sequences (odometry, scan-to-map): after each align(), context().set_warm_start(summary())
  *   starts the next one from this frame's noise model (~60 % of the updates; sie falls
  *   back to the full schedule by itself when the guess was bad).

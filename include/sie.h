@@ -271,6 +271,19 @@ enum sie_starts
      * significant of the two kept (a pose the method does not return to is no answer).
      */
     SIE_STARTS_INITIAL_GUESS = 1,
+    /**
+     * Clouds from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen
+     * from the data (a voxel leaving each a few thousand keypoints, never finer than its point
+     * spacing), mutual matches, the threshold-free hypothesis search on them, then SIE from
+     * the initial guess and from the 4 most significant poses found, the most significant
+     * result kept (starts ending elsewhere lower its margin, so disagreeing candidates are not
+     * GOOD). Costs the descriptors (about 0.1-0.5 s on 2 cores) and up to 5 SIE runs. Clouds
+     * under 50 keypoints with a normal, or whose normals all point one way (a plane), are
+     * refused with SIE_STATUS_TOO_FEW_POINTS and the reason in `sie_context_last_error`.
+     * SIE with the automatic beta0 only (else one run from the guess); correspondences: as
+     * AUTOMATIC.
+     */
+    SIE_STARTS_GLOBAL = 2,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -396,6 +409,11 @@ enum sie_start_kind
      * pillars: a rival pose), then SIE (clouds).
      */
     SIE_START_KIND_PERIOD_SHIFT = 6,
+    /**
+     * A pose proposed by matching FPFH descriptors of the two clouds (SIE_STARTS_GLOBAL), then
+     * SIE (clouds).
+     */
+    SIE_START_KIND_FEATURE_MATCH = 7,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -613,8 +631,8 @@ typedef struct sie_summary {
      */
     uint32_t starts_run;
     /**
-     * Minimal samples drawn by the hypothesis search of correspondence registration (0 when
-     * none ran).
+     * Minimal samples drawn by the hypothesis search of correspondence registration, or of
+     * SIE_STARTS_GLOBAL on descriptor matches (0 when none ran).
      */
     uint32_t hypotheses;
     /**
@@ -865,7 +883,8 @@ sie_status sie_context_set_metric(struct sie_context *ctx, uint32_t metric);
 /**
  * Selects where SIE starts (a `sie_starts`): AUTOMATIC runs SIE from several starts and keeps
  * the most significant result (`sie_summary.start`, `starts_run`, `agreeing_starts` report
- * the search), INITIAL_GUESS runs once from the initial guess (the paper's method).
+ * the search), INITIAL_GUESS runs once from the initial guess (the paper's method), GLOBAL
+ * needs no guess (descriptor matches propose the starts; see `sie_starts`).
  * Default: AUTOMATIC.
  *
  * # Safety

@@ -47,6 +47,8 @@
 // measurements are public but hidden from the documentation.
 mod cost;
 mod error;
+#[doc(hidden)]
+pub mod features;
 pub mod ffi;
 pub mod geometry;
 #[cfg(feature = "io")]

@@ -142,6 +142,14 @@ pub fn correspondence_registration_bytes(pairs: usize) -> usize {
     linear(pairs, 184, OVERHEAD)
 }
 
+/// Peak heap of the global stage (`Starts::Global`) beyond the registration's, for `points`
+/// points in both clouds together and descriptors of `descriptor_bytes`: per point a kd-tree
+/// (the point copied, its index) and the voxel table a first, fine voxel size may fill;
+/// estimated from the sizes of those structures (not measured by tests/peak_memory.rs).
+pub fn global_stage_bytes(points: usize, descriptor_bytes: usize) -> usize {
+    linear(points, 120, descriptor_bytes.saturating_add(OVERHEAD))
+}
+
 /// Peak heap of `estimate_inliers` beyond its input (measured at most 12 B a residual value).
 pub fn estimate_bytes(values: usize) -> usize {
     linear(values, 16, OVERHEAD)

@@ -619,3 +619,52 @@ fn demo_registers_the_synthetic_room() {
     assert!(rotation_deg < 0.5 && translation_mm < 10.0, "{sie_row}");
     assert!(sie_row.contains("converged"));
 }
+
+/// `--starts global`: the bunny pair with no guess, from a descriptor match, GOOD; 20 points are
+/// refused with the reason.
+#[test]
+fn global_starts_need_no_guess_and_refuse_what_they_cannot_describe() {
+    let dir = scratch("global_starts");
+    let Some(b) = bunny(&dir) else { return };
+    let output = sie(&[
+        "register",
+        arg(&b.source),
+        arg(&b.target),
+        "--starts",
+        "global",
+        "--ground-truth",
+        arg(&b.truth),
+        "--json",
+        "-q",
+    ]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let report = json(&output);
+    let rotation = report["ground_truth"]["rotation_error_deg"].as_f64().unwrap();
+    let translation = report["ground_truth"]["translation_error"].as_f64().unwrap();
+    assert!(
+        rotation < 1.0 && translation < 0.005,
+        "{rotation} deg, {translation} m"
+    );
+    assert_eq!(report["search"]["start"], "feature_match");
+    assert!(report["search"]["hypotheses"].as_u64().unwrap() > 0);
+    assert_eq!(report["quality"]["verdict"], "good");
+    let few = dir.join("few.xyz");
+    let lines: String = (0..20)
+        .map(|k| {
+            format!(
+                "{} {} {}\n",
+                (k as f64).sin(),
+                (k as f64 * 0.7).cos(),
+                k as f64 * 0.1
+            )
+        })
+        .collect();
+    fs::write(&few, lines).unwrap();
+    let output = sie(&["register", arg(&few), arg(&few), "--starts", "global"]);
+    assert_ne!(output.status.code(), Some(0));
+    assert!(
+        text(&output.stderr).contains("keypoints"),
+        "{}",
+        text(&output.stderr)
+    );
+}

@@ -247,6 +247,7 @@ pub fn search_row(result: &RegistrationResult) -> SearchRow {
             StartKind::WarmStart => "warm_start",
             StartKind::HalfTurn => "half_turn",
             StartKind::PeriodShift => "period_shift",
+            StartKind::FeatureMatch => "feature_match",
         },
         starts_run: search.starts_run,
         hypotheses: search.hypotheses,

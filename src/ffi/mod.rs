@@ -203,6 +203,17 @@ pub enum sie_starts {
     /// than 10 fitted sigma from the guess is run once more from its result and the more
     /// significant of the two kept (a pose the method does not return to is no answer).
     InitialGuess = 1,
+    /// Clouds from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen
+    /// from the data (a voxel leaving each a few thousand keypoints, never finer than its point
+    /// spacing), mutual matches, the threshold-free hypothesis search on them, then SIE from
+    /// the initial guess and from the 4 most significant poses found, the most significant
+    /// result kept (starts ending elsewhere lower its margin, so disagreeing candidates are not
+    /// GOOD). Costs the descriptors (about 0.1-0.5 s on 2 cores) and up to 5 SIE runs. Clouds
+    /// under 50 keypoints with a normal, or whose normals all point one way (a plane), are
+    /// refused with SIE_STATUS_TOO_FEW_POINTS and the reason in `sie_context_last_error`.
+    /// SIE with the automatic beta0 only (else one run from the guess); correspondences: as
+    /// AUTOMATIC.
+    Global = 2,
 }
 
 /// How far to trust a registration (`sie_summary.verdict`), from the evidence in the other
@@ -248,6 +259,9 @@ pub enum sie_start_kind {
     /// Another start's result shifted by one period of structure its inliers repeat (a row of
     /// pillars: a rival pose), then SIE (clouds).
     PeriodShift = 6,
+    /// A pose proposed by matching FPFH descriptors of the two clouds (SIE_STARTS_GLOBAL), then
+    /// SIE (clouds).
+    FeatureMatch = 7,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).
@@ -362,8 +376,8 @@ pub struct sie_summary {
     /// Starts SIE was run from (1 with SIE_STARTS_INITIAL_GUESS, a baseline cost or a fixed
     /// initial beta).
     pub starts_run: u32,
-    /// Minimal samples drawn by the hypothesis search of correspondence registration (0 when
-    /// none ran).
+    /// Minimal samples drawn by the hypothesis search of correspondence registration, or of
+    /// SIE_STARTS_GLOBAL on descriptor matches (0 when none ran).
     pub hypotheses: u32,
     /// Starts whose result is the returned pose (within 3 standard errors), itself included.
     pub agreeing_starts: u32,

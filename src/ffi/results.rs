@@ -49,6 +49,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StartKind::WarmStart => sie_start_kind::WarmStart,
         StartKind::HalfTurn => sie_start_kind::HalfTurn,
         StartKind::PeriodShift => sie_start_kind::PeriodShift,
+        StartKind::FeatureMatch => sie_start_kind::FeatureMatch,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

@@ -92,7 +92,8 @@ pub unsafe extern "C" fn sie_context_set_metric(ctx: *mut sie_context, metric: u
 
 /// Selects where SIE starts (a `sie_starts`): AUTOMATIC runs SIE from several starts and keeps
 /// the most significant result (`sie_summary.start`, `starts_run`, `agreeing_starts` report
-/// the search), INITIAL_GUESS runs once from the initial guess (the paper's method).
+/// the search), INITIAL_GUESS runs once from the initial guess (the paper's method), GLOBAL
+/// needs no guess (descriptor matches propose the starts; see `sie_starts`).
 /// Default: AUTOMATIC.
 ///
 /// # Safety
@@ -105,6 +106,7 @@ pub unsafe extern "C" fn sie_context_set_starts(ctx: *mut sie_context, starts: u
             config.starts = match sie_starts::decode(starts, "starts")? {
                 sie_starts::Automatic => Starts::Automatic,
                 sie_starts::InitialGuess => Starts::InitialGuess,
+                sie_starts::Global => Starts::Global,
             };
             Ok(())
         })

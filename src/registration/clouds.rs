@@ -12,10 +12,13 @@ use super::input::{
     Selection, Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points,
     sigma_slices,
 };
-use super::irls::{RunPlan, searches_starts};
+use super::irls::{RunPlan, searches_globally, searches_starts};
 use super::problem::CloudProblem;
 use super::result::RegistrationResult;
-use super::search::{register_from_starts, register_one_start, run_on_clouds};
+use super::search::{
+    FeaturePoses, feature_poses, register_from_feature_poses, register_from_starts, register_one_start,
+    run_on_clouds,
+};
 use super::target::{PrepareOptions, PreparedTarget};
 use super::verdict::{Evidence, judged_alone};
 use super::warm::{WarmRun, run_warm};
@@ -228,7 +231,14 @@ fn register_to_prepared(
         let units = target
             .units()
             .with_noise_of(&sigma_slices(&source_sigma, &target_sigma));
+        // The global stage's poses, from the clouds in the units the problem is built in.
+        let global = |source: &[Point], init: &Matrix4<f64>| {
+            searches_globally(config)
+                .then(|| feature_poses(source, target.points(), init, config.seed, &workers))
+                .transpose()
+        };
         if units.is_identity() {
+            let proposed = global(&points, &init)?;
             let mut problem = CloudProblem::new(
                 &points,
                 target,
@@ -240,10 +250,17 @@ fn register_to_prepared(
             )
             .map_err(Error::InvalidArgument)?;
             drop(points);
-            return Ok::<_, Error>(register_cloud_problem(&mut problem, init, config, hooks.observer));
+            return Ok::<_, Error>(register_cloud_problem(
+                &mut problem,
+                init,
+                proposed.as_ref(),
+                config,
+                hooks.observer,
+            ));
         }
         let moved = units.points(&points);
         drop(points);
+        let proposed = global(&moved, &units.transform_in(&init))?;
         let mut problem = CloudProblem::new(
             &moved,
             target,
@@ -257,7 +274,13 @@ fn register_to_prepared(
         drop(moved);
         let config = units.config_in(config);
         let mut result = in_units(&units, hooks.observer, |observer| {
-            register_cloud_problem(&mut problem, units.transform_in(&init), &config, observer)
+            register_cloud_problem(
+                &mut problem,
+                units.transform_in(&init),
+                proposed.as_ref(),
+                &config,
+                observer,
+            )
         });
         units.result_out(&mut result);
         Ok(result)
@@ -271,10 +294,12 @@ fn register_to_prepared(
 }
 
 /// ICP on a built problem (target index and normals ready): a warm start's run first when the
-/// caller gave one, then SIE's starts, or the one run of the paper's method (or a baseline).
+/// caller gave one, then SIE's starts (from the global stage's `proposed` poses when it ran),
+/// or the one run of the paper's method (or a baseline).
 fn register_cloud_problem(
     problem: &mut CloudProblem<'_>,
     init: Matrix4<f64>,
+    proposed: Option<&FeaturePoses>,
     config: &RegistrationConfig,
     mut observer: Option<&mut Observer<'_>>,
 ) -> RegistrationResult {
@@ -290,7 +315,9 @@ fn register_cloud_problem(
     // Without a warm start, or after one whose model did not hold: the updates are numbered on.
     let cold = plan.cold();
     let first_iteration = warm_run.as_ref().map_or(1, |r| r.iterations + 1);
-    let mut result = if searches_starts(config) {
+    let mut result = if let Some(proposed) = proposed {
+        register_from_feature_poses(problem, init, proposed, first_iteration, &cold, observer)
+    } else if searches_starts(config) {
         register_from_starts(problem, init, first_iteration, &cold, observer)
     } else if cold.is_sie() {
         register_one_start(problem, init, first_iteration, &cold, observer)

@@ -45,6 +45,9 @@ pub enum StartKind {
     /// The result of another start shifted by one period of structure its inliers repeat
     /// (a row of pillars, `search::period_shifts`), then SIE (ICP).
     PeriodShift,
+    /// A pose proposed by matching FPFH descriptors of the two clouds (`Starts::Global`), then
+    /// SIE (ICP).
+    FeatureMatch,
 }
 
 /// One IRLS iteration, for plotting convergence.
@@ -193,7 +196,8 @@ pub struct Quality {
 pub struct SearchReport {
     /// Which start the transform came from.
     pub start: StartKind,
-    /// Minimal samples drawn by the hypothesis search (0 when none ran).
+    /// Minimal samples drawn by the hypothesis search (0 when none ran): on the given pairs, or
+    /// on the descriptor matches of `Starts::Global`.
     pub hypotheses: u32,
     /// Starts SIE was run from (1 without a search).
     pub starts_run: u32,

@@ -336,8 +336,8 @@ static void test_setters(sie_context *ctx) {
     CHECK(error_contains(ctx, "metric = 2"));
     EXPECT(ctx, sie_context_set_metric(ctx, SIE_METRIC_POINT_TO_PLANE), SIE_STATUS_OK);
 
-    EXPECT(ctx, sie_context_set_starts(ctx, 2), SIE_STATUS_INVALID_ARGUMENT);
-    CHECK(error_contains(ctx, "starts = 2"));
+    EXPECT(ctx, sie_context_set_starts(ctx, 3), SIE_STATUS_INVALID_ARGUMENT);
+    CHECK(error_contains(ctx, "starts = 3"));
     EXPECT(ctx, sie_context_set_starts(ctx, 0xFFFFFFFFu), SIE_STATUS_INVALID_ARGUMENT);
     EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_INITIAL_GUESS), SIE_STATUS_OK);
     EXPECT(ctx, sie_context_set_starts(ctx, SIE_STARTS_AUTOMATIC), SIE_STATUS_OK); /* the default */

@@ -72,6 +72,7 @@ class Starts(_NamedEnum):
 
     AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
     INITIAL_GUESS = 1  # the paper's method from the guess (again from its result if it went > 10 sigma)
+    GLOBAL = 2  # no guess needed: descriptor matches propose the starts (slower; small or flat clouds refused)
 
 
 class Verdict(_NamedEnum):
@@ -93,6 +94,7 @@ class StartKind(_NamedEnum):
     WARM_START = 4
     HALF_TURN = 5  # a near-symmetric scene's rival pose (another start turned half a turn)
     PERIOD_SHIFT = 6  # a repeating scene's rival pose (another start shifted by one period)
+    FEATURE_MATCH = 7  # a pose from matched FPFH descriptors (Starts.GLOBAL)
 
 
 class FrameStatus(_NamedEnum):

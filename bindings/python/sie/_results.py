@@ -34,7 +34,8 @@ class Summary:
     needs >= 0.02), sigma_to_spacing (fitted sigma over the target points' spacing; clouds
     only, GOOD needs <= 1) and margin (significance over runner_up_significance, that of the
     best start that ended at another pose; GOOD needs >= 2; 0 when no start ended elsewhere).
-    start, starts_run, agreeing_starts and hypotheses describe the search (Starts.AUTOMATIC).
+    start, starts_run, agreeing_starts and hypotheses describe the search (Starts.AUTOMATIC,
+    Starts.GLOBAL).
     iterations counts the updates of every start; max_iterations caps each start.
     """
 

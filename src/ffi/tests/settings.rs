@@ -62,6 +62,12 @@ fn setters_store_valid_values() {
             sie_status::Ok
         );
         assert_eq!(ctx.config().starts, Starts::InitialGuess);
+        assert_eq!(
+            sie_context_set_starts(ctx.0, sie_starts::Global as u32),
+            sie_status::Ok
+        );
+        assert_eq!(ctx.config().starts, Starts::Global);
+        assert_eq!(sie_context_set_starts(ctx.0, 3), sie_status::InvalidArgument);
         assert_eq!(sie_context_set_starts(ctx.0, 0), sie_status::Ok);
         assert_eq!(ctx.config().starts, Starts::Automatic);
         assert_eq!(sie_context_set_starts(ctx.0, 1), sie_status::Ok);
@@ -101,8 +107,8 @@ fn rejected_setters_keep_the_old_config() {
         rejected(sie_context_set_cost_function(ctx.0, 3, 3.0), "Lp { p: 3.0 }");
         rejected(sie_context_set_metric(ctx.0, 2), "metric = 2");
         rejected(
-            sie_context_set_starts(ctx.0, 2),
-            "starts = 2 is not a known value (valid: 0..=1)",
+            sie_context_set_starts(ctx.0, 3),
+            "starts = 3 is not a known value (valid: 0..=2)",
         );
         rejected(sie_context_set_starts(ctx.0, u32::MAX), "starts = 4294967295");
         rejected(sie_context_set_max_iterations(ctx.0, 0), "max_iterations");

@@ -19,7 +19,7 @@ use super::result::{
 use crate::geometry::transform_change;
 use crate::sie::schedule::{Convergence, PrecisionStop};
 pub(crate) use per_point::{FinalModel, PendingPerPoint};
-pub(crate) use plan::{Matching, RunPlan, searches_starts};
+pub(crate) use plan::{Matching, RunPlan, searches_globally, searches_starts};
 use weighting::Weighting;
 
 /// Residuals divided by F, the IRLS weights (eq. regprob2), and the final evaluation's

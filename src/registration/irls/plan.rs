@@ -164,8 +164,16 @@ impl RunPlan {
     }
 }
 
-/// Whether a registration leaves SIE's start to the search (`Starts::Automatic`, SIE, β₀ not
-/// fixed by the caller): a fixed β₀ means one run from the initial guess, as the C header says.
+/// Whether a registration leaves SIE's start to the search (`Starts::Automatic`, or
+/// `Starts::Global`, which is the same for correspondences; SIE, β₀ not fixed by the caller): a
+/// fixed β₀ means one run from the initial guess, as the C header says.
 pub(crate) fn searches_starts(config: &RegistrationConfig) -> bool {
-    config.cost == CostFunction::Sie && config.starts == Starts::Automatic && config.initial_beta.is_none()
+    config.cost == CostFunction::Sie
+        && matches!(config.starts, Starts::Automatic | Starts::Global)
+        && config.initial_beta.is_none()
+}
+
+/// Whether ICP starts from the global stage's poses (`Starts::Global`, under the same rule).
+pub(crate) fn searches_globally(config: &RegistrationConfig) -> bool {
+    searches_starts(config) && config.starts == Starts::Global
 }

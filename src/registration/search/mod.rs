@@ -8,9 +8,13 @@
 //!   poses.
 //! * `half_turns`: the rivals a near-symmetric scene allows a result, run as further starts.
 //! * `choice`: the choice between the starts' results, and how the others relate to it.
+//! * `feature_poses`, `global_starts`: with no guess to trust, poses from descriptor matches
+//!   (FPFH, mutual matching, the hypothesis search) and SIE from each.
 
 mod choice;
 mod cloud_starts;
+mod feature_poses;
+mod global_starts;
 mod half_turns;
 mod hypotheses;
 mod pair_starts;
@@ -20,4 +24,6 @@ pub(crate) use choice::BestOfStarts;
 pub(crate) use cloud_starts::{
     challenge_with_rivals, register_from_starts, register_one_start, run_on_clouds,
 };
+pub(crate) use feature_poses::{FeaturePoses, feature_poses};
+pub(crate) use global_starts::register_from_feature_poses;
 pub(crate) use pair_starts::{register_from_guess, register_from_hypotheses};
