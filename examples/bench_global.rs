@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use nalgebra::{Matrix4, Rotation3, Translation3, Unit, Vector3};
-use sie::geometry::{centroid, rotation_angle, rotation_part, transform_point, translation_part};
+use sie::geometry::{
+    bounding_box_diagonal, centroid, rotation_angle, rotation_part, transform_point, translation_part,
+};
 use sie::io::{read_cloud, read_transform};
 use sie::{Hooks, Point, RegistrationConfig, Starts, Verdict, register_clouds};
 
@@ -48,7 +50,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|");
     let (mut successes, mut runs, mut wrong_good) = (0, 0, 0);
     for pair in &pairs {
-        let diagonal = diagonal(&pair.target);
+        let diagonal = bounding_box_diagonal(&pair.target);
         for (degrees, axis) in TURNS {
             let axis = Unit::new_normalize(Vector3::from(axis));
             let c = Vector3::from(centroid(&pair.source));
@@ -88,15 +90,6 @@ fn main() {
     println!(
         "\n{successes} of {runs} within 2° and 2 % of the diagonal; wrong poses called GOOD: {wrong_good}"
     );
-}
-
-fn diagonal(points: &[Point]) -> f64 {
-    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
-    for p in points {
-        lo = lo.inf(&Vector3::from(*p));
-        hi = hi.sup(&Vector3::from(*p));
-    }
-    (hi - lo).norm()
 }
 
 fn pairs(dir: &Path) -> Vec<Pair> {

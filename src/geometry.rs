@@ -43,6 +43,24 @@ pub fn first_non_finite(points: &[Point]) -> Option<usize> {
     points.iter().position(|p| !is_finite(p))
 }
 
+/// The corners (smallest and largest coordinate on each axis) of the points' bounding box.
+pub fn bounding_box(points: &[Point]) -> (Vector3<f64>, Vector3<f64>) {
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for p in points {
+        let v = Vector3::from(*p);
+        lo = lo.inf(&v);
+        hi = hi.sup(&v);
+    }
+    (lo, hi)
+}
+
+/// The length of the diagonal of the points' bounding box (success bounds are a share of it).
+pub fn bounding_box_diagonal(points: &[Point]) -> f64 {
+    let (lo, hi) = bounding_box(points);
+    (hi - lo).norm()
+}
+
 /// Euclidean length of a vector.
 #[inline]
 pub fn length(v: &Point) -> f64 {

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use common::{data_dir, pose_error};
 use nalgebra::{Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
-use sie::geometry::transform_point;
+use sie::geometry::{bounding_box_diagonal, transform_point};
 use sie::io::{read_cloud, read_transform};
 use sie::{Error, Hooks, Point, RegistrationConfig, Starts, Verdict, register_clouds};
 
@@ -40,15 +40,6 @@ fn scan_pose(dir: &Path, scan: &str) -> Matrix4<f64> {
     pose
 }
 
-fn diagonal(points: &[Point]) -> f64 {
-    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
-    for p in points {
-        lo = lo.inf(&Vector3::from(*p));
-        hi = hi.sup(&Vector3::from(*p));
-    }
-    (hi - lo).norm()
-}
-
 /// Registers `source` turned by `turn` about the origin onto `target` with no guess, and checks
 /// the pose against `truth` (source → target before the turn): within 2° and 2 % of the
 /// target's diagonal, GOOD.
@@ -62,11 +53,11 @@ fn check(what: &str, source: &[Point], target: &[Point], truth: &Matrix4<f64>, t
     let result = register_clouds(&turned, target, None, None, &global(), Hooks::default()).unwrap();
     let seconds = started.elapsed().as_secs_f64();
     let (rotation, translation) = pose_error(&result.transform, &truth);
-    let bound = 0.02 * diagonal(target);
+    let bound = 0.02 * bounding_box_diagonal(target);
     println!(
         "{what}: {rotation:.2} deg, {:.4} ({:.2} % of the diagonal), {:?}, start {:?}, {} starts, {seconds:.2} s",
         translation,
-        100.0 * translation / diagonal(target),
+        100.0 * translation / bounding_box_diagonal(target),
         result.quality.verdict,
         result.search.start,
         result.search.starts_run
@@ -157,7 +148,7 @@ fn room_scans_turned_half_a_turn_find_the_pose_registered_from_the_tutorial_gues
         started.elapsed().as_secs_f64()
     );
     assert!(
-        rotation < 2.0 && translation < 0.02 * diagonal(&target),
+        rotation < 2.0 && translation < 0.02 * bounding_box_diagonal(&target),
         "{rotation} deg, {translation} m"
     );
     assert_eq!(result.quality.verdict, reference.quality.verdict);

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use crate::geometry::dot;
+use crate::geometry::{bounding_box, dot};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
 use crate::point::Point;
@@ -65,7 +65,7 @@ impl DescriptorScale {
 /// guess reach it.
 fn voxel_for(points: &[Point], index: &NearestNeighbours, max_keypoints: usize) -> Option<f64> {
     let spacing = spacing(points, index);
-    let (lo, hi) = bounds(points);
+    let (lo, hi) = bounding_box(points);
     let diagonal = (hi - lo).norm();
     if !(diagonal.is_finite() && diagonal > 0.0) {
         return None;
@@ -111,17 +111,6 @@ fn spacing(points: &[Point], index: &NearestNeighbours) -> f64 {
     }
     let middle = distances.len() / 2;
     *distances.select_nth_unstable_by(middle, f64::total_cmp).1
-}
-
-fn bounds(points: &[Point]) -> (Vector3<f64>, Vector3<f64>) {
-    let mut lo = Vector3::repeat(f64::INFINITY);
-    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
-    for p in points {
-        let v = Vector3::from(*p);
-        lo = lo.inf(&v);
-        hi = hi.sup(&v);
-    }
-    (lo, hi)
 }
 
 fn voxel_key(p: &Point, voxel: f64) -> [i64; 3] {
