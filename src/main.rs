@@ -32,6 +32,7 @@ fn main() -> ExitCode {
     let outcome = panic::catch_unwind(|| match &cli.command {
         Command::Register(args) => cli::register::run(args),
         Command::Demo(args) => cli::demo::run(args),
+        Command::Odometry(args) => cli::odometry::run(args),
     });
     match outcome {
         Ok(Ok(code)) => ExitCode::from(code),

@@ -668,3 +668,74 @@ fn global_starts_need_no_guess_and_refuse_what_they_cannot_describe() {
         text(&output.stderr)
     );
 }
+
+/// `sie odometry` over room frames written as .xyz, with a repeat, a frame of missing returns
+/// only and a missing file among them: one KITTI line a frame (the set-aside ones hold the prediction), each good
+/// frame's pose on the truth, exit 3 because frames were set aside; 0 when none is.
+#[test]
+fn odometry_prints_a_pose_a_frame_and_sets_bad_frames_aside() {
+    let dir = scratch("odometry");
+    let trajectory = sie::synthetic::room_trajectory(40, 3_000, 0.01, 7);
+    let mut paths = Vec::new();
+    for (i, frame) in trajectory.frames.iter().take(5).enumerate() {
+        let path = dir.join(format!("{i}.xyz"));
+        let lines: Vec<String> = frame
+            .iter()
+            .map(|p| format!("{} {} {}", p[0], p[1], p[2]))
+            .collect();
+        fs::write(&path, lines.join("\n")).unwrap();
+        paths.push(path);
+    }
+    // Missing returns only, as a driver writes them: nothing usable once they are dropped.
+    let empty = dir.join("no-returns.xyz");
+    fs::write(&empty, "0 0 0\nnan nan nan\n0 0 0\n0 0 0\n").unwrap();
+    let missing = dir.join("missing.xyz");
+    let poses_file = dir.join("poses.txt");
+    // (file, the true frame it is if good)
+    let sent = [
+        (&paths[0], Some(0)),
+        (&paths[1], Some(1)),
+        (&paths[1], None),
+        (&empty, None),
+        (&paths[3], Some(3)),
+        (&missing, None),
+        (&paths[4], Some(4)),
+    ];
+    let mut args = vec!["odometry", "--threads", "2", "-o", arg(&poses_file)];
+    args.extend(sent.iter().map(|(path, _)| arg(path)));
+    let output = sie(&args);
+    let stderr = text(&output.stderr);
+    assert_eq!(output.status.code(), Some(3), "{stderr}");
+    for words in [
+        "first",
+        "accepted",
+        "the last accepted frame again",
+        "refused",
+        "unreadable",
+        "3 set aside",
+    ] {
+        assert!(stderr.contains(words), "{words:?} not in {stderr}");
+    }
+    let stdout = text(&output.stdout);
+    assert_eq!(fs::read_to_string(&poses_file).unwrap(), stdout);
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), sent.len(), "{stdout}");
+    let world = trajectory.poses[0].try_inverse().unwrap();
+    for ((_, truth), line) in sent.iter().zip(&lines) {
+        let values: Vec<f64> = line.split_whitespace().map(|v| v.parse().unwrap()).collect();
+        assert_eq!(values.len(), 12, "{line}");
+        let Some(i) = truth else { continue };
+        let mut pose = Matrix4::identity();
+        for (k, v) in values.iter().enumerate() {
+            pose[(k / 4, k % 4)] = *v;
+        }
+        let (degrees, metres) = pose_error(&pose, &(world * trajectory.poses[*i]));
+        assert!(
+            degrees < 0.1 && metres < 0.005,
+            "frame {i}: {degrees:.3}° / {metres:.4} m"
+        );
+    }
+    let clean = sie(&["odometry", "-q", arg(&paths[0]), arg(&paths[1]), arg(&paths[2])]);
+    assert_eq!(clean.status.code(), Some(0), "{}", text(&clean.stderr));
+    assert!(clean.stderr.is_empty(), "{}", text(&clean.stderr));
+}

@@ -40,6 +40,56 @@ pub enum Command {
     Register(Box<RegisterArgs>),
     /// Register a built-in synthetic room scene and print the error against the known transform.
     Demo(DemoArgs),
+    /// Odometry over FRAME files in order: each frame's T_world_sensor on stdout (KITTI: the top
+    /// three rows, 12 numbers a line; the first frame is the world), its status on stderr.
+    #[command(after_help = ODOMETRY_EXIT_CODES_HELP)]
+    Odometry(OdometryArgs),
+}
+
+/// Exit codes of `sie odometry`.
+pub const ODOMETRY_EXIT_CODES_HELP: &str = "\
+Each frame registers onto the last accepted frame from a constant-velocity guess; only a GOOD
+registration moves the trajectory. A frame set aside (not GOOD, a jump no tracking explains, a
+repeat, an unreadable file or no usable point) still gets a line: the constant-velocity prediction.
+Missing returns (NaN, 0 0 0) are dropped.
+
+Exit codes:
+  0    every frame was accepted
+  2    usage error, or an output that could not be written
+  3    some frames were set aside (their lines hold the prediction; stderr says why)
+  70   internal error (a bug; please report the message)";
+
+#[derive(Args)]
+pub struct OdometryArgs {
+    /// Frame files (.pcd, .ply, .xyz, .txt), in time order, points in the sensor's frame.
+    #[arg(required = true, num_args = 1..)]
+    pub frames: Vec<PathBuf>,
+    /// Residual metric.
+    #[arg(long, value_enum, default_value_t = MetricArg::PointToPlane)]
+    pub metric: MetricArg,
+    /// Neighbours for the target normals of point-to-plane (3..=1000).
+    #[arg(long, default_value_t = defaults().normal_neighbours)]
+    pub normal_neighbours: usize,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0, value_parser = parse_threads, allow_negative_numbers = true)]
+    pub threads: usize,
+    /// Also write the poses (the stdout lines) to FILE.
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// No per-frame status lines on stderr (errors still are).
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+impl OdometryArgs {
+    pub fn config(&self) -> RegistrationConfig {
+        RegistrationConfig {
+            metric: self.metric.into(),
+            normal_neighbours: self.normal_neighbours,
+            threads: self.threads,
+            ..sie::Odometry::sensor_config()
+        }
+    }
 }
 
 fn defaults() -> RegistrationConfig {

@@ -1,4 +1,4 @@
-//! The `sie` command-line tool: argument parsing, the `register` and `demo` commands, their
+//! The `sie` command-line tool: argument parsing, the `register`, `demo` and `odometry` commands, their
 //! reports (text, JSON, the histogram plot) and the live progress on stderr.
 //!
 //! Everything here runs on the same core as the C ABI (`register_clouds`); none of it is part
@@ -8,6 +8,7 @@ pub mod args;
 pub mod demo;
 pub mod glyphs;
 pub mod numbers;
+pub mod odometry;
 pub mod plot;
 pub mod progress;
 pub mod register;

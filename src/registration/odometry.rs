@@ -138,6 +138,19 @@ impl Odometry {
         self.pose
     }
 
+    /// T_world_sensor the constant-velocity model predicts for the next frame: the last accepted
+    /// pose moved by the last accepted motion once per frame since (`None` before the first).
+    pub fn predicted_pose(&self) -> Option<Matrix4<f64>> {
+        self.keyframe.as_ref()?;
+        Some(orthonormalised(&(self.pose * self.guess())))
+    }
+
+    /// The motion from the last accepted frame the next frame is registered from.
+    fn guess(&self) -> Matrix4<f64> {
+        let velocity = self.velocity.unwrap_or_else(Matrix4::identity);
+        (0..=self.frames_since_accepted).fold(Matrix4::identity(), |m, _| orthonormalised(&(m * velocity)))
+    }
+
     /// The registration settings every frame uses.
     pub fn config(&self) -> &RegistrationConfig {
         &self.config
@@ -167,10 +180,9 @@ impl Odometry {
         if keyframe.fingerprint == fingerprint {
             return outcome(FrameStatus::Repeated, None, Some(self.pose), None, None);
         }
-        let steps = self.frames_since_accepted + 1;
-        let velocity = self.velocity.unwrap_or_else(Matrix4::identity);
-        let guess = (0..steps).fold(Matrix4::identity(), |m, _| orthonormalised(&(m * velocity)));
-        let predicted = Some(orthonormalised(&(self.pose * guess)));
+        let first_since_accepted = self.frames_since_accepted == 0;
+        let guess = self.guess();
+        let predicted = self.predicted_pose();
         let result = match register_clouds_to(frame, &keyframe.target, Some(&guess), &self.config, hooks) {
             Ok(result) => result,
             Err(error) => {
@@ -204,7 +216,7 @@ impl Odometry {
         };
         self.keyframe = Some(next);
         // The motion over a gap of several frames is no per-frame velocity: keep the last one.
-        if steps == 1 {
+        if first_since_accepted {
             self.velocity = Some(result.transform);
         }
         self.frames_since_accepted = 0;
