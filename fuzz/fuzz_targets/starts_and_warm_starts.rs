@@ -116,7 +116,7 @@ fuzz_target!(|data: &[u8]| {
         }
         if bad_starts {
             assert_eq!(
-                sie_context_set_starts(ctx, 2 + u32::from(split)),
+                sie_context_set_starts(ctx, 3 + u32::from(split)),
                 sie_status::InvalidArgument
             );
             assert!(!last_error(ctx).is_empty());
