@@ -243,6 +243,12 @@ impl Schedule {
         self.phase == Phase::Annealing
     }
 
+    /// Whether the final round's model is held fixed (the updates then iterate one map of the
+    /// pose alone).
+    pub fn model_frozen(&self) -> bool {
+        self.phase == Phase::Frozen
+    }
+
     /// Fits SIE to this update's residuals (rows × `cols`, divided by the row scales F_i of
     /// §4.4; `row_scale(i)` is F_i) and fills the IRLS weights of eq. (regprob3) / (regprob3GGD):
     /// w_i = σ^-p·max(‖r_i‖, δ)^(p-2)·P(I|r_i)·F_i^-2; σ^-p is common to all rows and dropped.

@@ -2,6 +2,7 @@
 //! (SIE's schedule of §4.3/§4.5, or a baseline cost), solve, stop; then the report at the
 //! transform reached. Each run follows its own [`RunPlan`].
 
+mod extrapolation;
 mod per_point;
 mod plan;
 mod weighting;
@@ -18,8 +19,9 @@ use super::result::{
 };
 use crate::geometry::transform_change;
 use crate::sie::schedule::{Convergence, PrecisionStop};
+use extrapolation::Extrapolation;
 pub(crate) use per_point::{FinalModel, PendingPerPoint};
-pub(crate) use plan::{Matching, RunPlan, searches_globally, searches_starts};
+pub(crate) use plan::{FinalRound, Matching, RunPlan, searches_globally, searches_starts};
 use weighting::Weighting;
 
 /// Residuals divided by F, the IRLS weights (eq. regprob2), and the final evaluation's
@@ -207,6 +209,7 @@ fn iterate(
     // and a coarse subset of the matches steers as well as all of them (no convergence is
     // declared on such an update).
     let mut travelling = false;
+    let mut extrapolation = Extrapolation::default();
     for iteration in first_iteration..first_iteration.saturating_add(stop_rule.max_updates) {
         laps.lap(&mut 0.0);
         let searching = weighting.annealing() || travelling;
@@ -284,6 +287,15 @@ fn iterate(
         if converged {
             stop = StopReason::Converged;
             break;
+        }
+        // SIE's final round with its model frozen, on re-matched pairs (ICP): the updates then
+        // iterate one map of the pose, and creep where the surfaces fix it weakly.
+        if plan.final_round == FinalRound::Extrapolated
+            && weighting.model_frozen()
+            && !travelling
+            && problem.rematches()
+        {
+            transform = extrapolation.next(&*problem, &previous, &transform, weighting.width());
         }
     }
     if rank_deficient && stop != StopReason::Cancelled {

@@ -18,6 +18,18 @@ pub(crate) struct RunPlan {
     pub(crate) stop: StopRule,
     /// Keep one `TraceEntry` per update in the result (an observer sees them either way).
     pub(crate) record_trace: bool,
+    /// How SIE's final round on re-matched pairs moves (`irls::extrapolation`).
+    pub(crate) final_round: FinalRound,
+}
+
+/// How the updates of SIE's final round on re-matched pairs (ICP) move the pose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum FinalRound {
+    /// Where updates shrink geometrically along one direction, on to where they lead.
+    Extrapolated,
+    /// Update by update: a screen's short run (`RunPlan::settling`), whose thresholds were
+    /// set on plain updates.
+    Plain,
 }
 
 /// The cost of a run.
@@ -83,6 +95,7 @@ impl RunPlan {
                 rotation_tolerance: config.rotation_tolerance,
             },
             record_trace: config.record_trace,
+            final_round: FinalRound::Extrapolated,
         }
     }
 
@@ -118,6 +131,7 @@ impl RunPlan {
                 ..self.stop
             },
             record_trace: self.record_trace,
+            final_round: self.final_round,
         }
     }
 
@@ -131,6 +145,7 @@ impl RunPlan {
                 ..self.stop
             },
             record_trace: false,
+            final_round: FinalRound::Plain,
             ..self.cold()
         }
     }

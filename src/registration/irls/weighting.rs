@@ -50,6 +50,11 @@ impl Weighting {
         matches!(self, Weighting::Sie(schedule) if schedule.annealing())
     }
 
+    /// SIE's final round with its model held fixed (never for baselines).
+    pub(crate) fn model_frozen(&self) -> bool {
+        matches!(self, Weighting::Sie(schedule) if schedule.model_frozen())
+    }
+
     /// The model's width σ+β (normalised); infinite for baselines (they never travel coarse).
     pub(crate) fn width(&self) -> f64 {
         match self {
