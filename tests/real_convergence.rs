@@ -14,7 +14,25 @@ mod scans;
 mod simulation;
 
 use common::data_dir;
-use sie::{Hooks, StopReason, Verdict, register_clouds};
+use sie::{Hooks, RegistrationResult, StopReason, Verdict, register_clouds};
+
+/// One run's line in the test's output: the pair, its errors and how it ended.
+fn describe(case: &scans::PairCase, result: &RegistrationResult) -> String {
+    let (degrees, metres) = case.errors(&result.transform);
+    format!(
+        "{} {} -> {}: {degrees:.3} deg, {metres:.4} m, {:?} after {} updates ({} starts), \
+         verdict {:?} (margin {:.3}, σ/spacing {:.2})",
+        case.settings.name,
+        case.source_name,
+        case.target_name,
+        result.stop_reason,
+        result.iterations,
+        result.search.starts_run,
+        result.quality.verdict,
+        result.quality.margin,
+        result.quality.sigma_to_spacing
+    )
+}
 
 #[test]
 fn kinect_frames_that_cycled_at_the_cap_now_converge_where_right() {
@@ -35,18 +53,7 @@ fn kinect_frames_that_cycled_at_the_cap_now_converge_where_right() {
         )
         .expect("valid frames");
         let errors = case.errors(&result.transform);
-        println!(
-            "{} {} -> {}: {:.3} deg, {:.4} m, {:?} after {} updates ({} starts), verdict {:?}",
-            case.settings.name,
-            case.source_name,
-            case.target_name,
-            errors.0,
-            errors.1,
-            result.stop_reason,
-            result.iterations,
-            result.search.starts_run,
-            result.quality.verdict
-        );
+        println!("{}", describe(case, &result));
         if case.success(errors) {
             right += 1;
             assert_eq!(
@@ -88,17 +95,7 @@ fn right_runs_on_the_kinect_frames_are_good() {
             .expect("valid frames");
             let errors = case.errors(&result.transform);
             let good = result.quality.verdict == Verdict::Good;
-            println!(
-                "{} {} -> {} [{start}]: {:.3} deg, {:.4} m, {:?} (margin {:.3}, σ/spacing {:.2})",
-                case.settings.name,
-                case.source_name,
-                case.target_name,
-                errors.0,
-                errors.1,
-                result.quality.verdict,
-                result.quality.margin,
-                result.quality.sigma_to_spacing
-            );
+            println!("[{start}] {}", describe(case, &result));
             if case.success(errors) {
                 right += 1;
                 right_and_good += usize::from(good);
@@ -138,16 +135,7 @@ fn kinect_frames_from_a_constant_velocity_guess_converge_where_right() {
         )
         .expect("valid frames");
         let errors = case.errors(&result.transform);
-        println!(
-            "{} -> {}: {:.3} deg, {:.4} m, {:?} after {} updates, verdict {:?}",
-            case.source_name,
-            case.target_name,
-            errors.0,
-            errors.1,
-            result.stop_reason,
-            result.iterations,
-            result.quality.verdict
-        );
+        println!("{}", describe(case, &result));
         if case.success(errors) {
             right += 1;
             assert_eq!(result.stop_reason, StopReason::Converged, "{}", case.source_name);

@@ -101,3 +101,31 @@ fn point_to_point_never_calls_a_held_pose_good() {
         }
     }
 }
+
+/// Odometry with warm starts through a standstill: from the standing sweep's model (σ 5 mm,
+/// β₀ = 2σ) and the zero-motion guess a standstill predicts, a warm run after a 0.5 m move
+/// stayed at zero motion, DOUBTFUL, and was kept, since its model "held" (σ and inliers as
+/// before, nothing moved). A warm result that is not GOOD must give way to the cold search.
+#[test]
+fn a_warm_start_from_a_standstill_does_not_hold_the_next_motion_at_zero() {
+    let (source, target, _) = sweeps_after(&Isometry3::identity());
+    let standing = register(&source, &target, Metric::PointToPlane, Starts::Automatic);
+    let warm_start = sie::WarmStart::of(&standing).expect("an SIE result has a noise model");
+    for forward in [0.06, 0.5] {
+        let (source, target, truth) = sweeps_after(&drive(forward, 0.0));
+        let config = RegistrationConfig {
+            warm_start: Some(warm_start),
+            ..RegistrationConfig::default()
+        };
+        // The constant-velocity guess after a standstill: zero motion.
+        let result =
+            register_clouds(&source, &target, None, None, &config, Hooks::default()).expect("registration");
+        let (rotation, translation) = pose_error(&result.transform, &truth);
+        let case = format!(
+            "{forward} m after a standstill (σ {:.1e} warm): {rotation:.4}° {translation:.4} m, {:?}, start {:?}",
+            standing.sigma[0], result.quality.verdict, result.search.start
+        );
+        assert!(rotation < 0.05 && translation < 0.005, "{case}");
+        assert_eq!(result.quality.verdict, Verdict::Good, "{case}");
+    }
+}

@@ -332,7 +332,8 @@ fn register_cloud_problem(
     if let Some(mut warm_run) = warm_run {
         warm_run.trace.append(&mut result.trace);
         result.trace = warm_run.trace;
-        result.search.starts_run += 1;
+        // The warm run, and the rivals that challenged it when its model held.
+        result.search.starts_run += warm_run.search.starts_run.max(1);
     }
     result
 }

@@ -6,7 +6,7 @@ use nalgebra::Matrix4;
 use super::hooks::Observer;
 use super::irls::RunPlan;
 use super::problem::{CloudProblem, Problem, moved_apart};
-use super::result::{RegistrationResult, StartKind, StopReason};
+use super::result::{RegistrationResult, StartKind, StopReason, Verdict};
 use super::search::{BestOfStarts, challenge_with_rivals, run_on_clouds};
 use super::verdict::{Evidence, judged_alone};
 use crate::sie::WarmStart;
@@ -31,14 +31,16 @@ impl WarmStart {
 
 /// What became of a warm run.
 pub(crate) enum WarmRun {
-    /// Its model held (or the caller cancelled it): the registration's result, judged.
+    /// Its model held and its result is GOOD (or the caller cancelled it): the registration's
+    /// result, judged.
     Kept(RegistrationResult),
-    /// Its model did not hold: only its trace and update count go on (no per-point results
-    /// were built for it).
+    /// Its model did not hold, or its result was not GOOD: only its trace, update and start
+    /// counts go on.
     Dropped(RegistrationResult),
 }
 
-/// SIE from the initial guess by `plan` (which starts from `warm`), kept when the model held.
+/// SIE from the initial guess by `plan` (which starts from `warm`), kept when the model held
+/// and the result, challenged by its rivals, is GOOD.
 pub(crate) fn run_warm(
     problem: &mut CloudProblem<'_>,
     init: Matrix4<f64>,
@@ -64,7 +66,18 @@ pub(crate) fn run_warm(
         if best.offer(problem, result, Some(pending), StartKind::WarmStart) {
             challenge_with_rivals(problem, &mut best, &plan.cold(), observer);
         }
-        return WarmRun::Kept(best.finish(problem));
+        let judged = best.finish(problem);
+        // A model can "hold" at a wrong guess that it never left: after a standstill the
+        // guess is zero motion, and a street's ground and fronts, which run along the motion,
+        // fit there as well as before while β₀ = 2σ is too narrow to see the 0.5 m the vehicle
+        // moved (nothing moved, so the reach rule sees nothing). The verdict does (the motion
+        // along the street is loose there): a result not GOOD goes to the cold search, which
+        // starts wide. (A cancelled run ends as the best.)
+        return if judged.stop_reason == StopReason::Cancelled || judged.quality.verdict == Verdict::Good {
+            WarmRun::Kept(judged)
+        } else {
+            WarmRun::Dropped(judged)
+        };
     }
     WarmRun::Dropped(result)
 }
