@@ -900,7 +900,8 @@ sie_status sie_context_set_starts(struct sie_context *ctx, uint32_t starts);
  * when its first level finds the guess within the model's width (6.6 updates a frame against 19
  * cold in the sequence benchmark's room, the same drift). When that run shows the guess was bad (it did not
  * converge, sigma more than doubled, the inlier fraction halved, or it travelled farther than
- * the model could see), the registration runs as without a warm start, by itself
+ * the model could see) or its verdict is not GOOD, the registration runs as without a warm
+ * start, by itself
  * (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). The values
  * are copied; the setting stays until changed (call it after every frame). Ignored by
  * baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:

@@ -75,8 +75,9 @@ pub struct RegistrationConfig {
     /// sequence registered from good guesses. One run from the initial guess with β₀ = 2σ and
     /// no levels far below σ (none after the first when that one moved the rows by less than
     /// the model's width); when it ends without the model holding (not converged, no inlier
-    /// peak, σ more than doubled or the inlier fraction halved: the guess was bad), the
-    /// registration runs as without it (`starts`). Ignored when `initial_beta` is set.
+    /// peak, σ more than doubled, the inlier fraction halved, or it travelled beyond the
+    /// model's reach: the guess was bad) or with a verdict that is not GOOD, the registration
+    /// runs as without it (`starts`). Ignored when `initial_beta` is set.
     pub warm_start: Option<WarmStart>,
     /// β ← shrink·β after each convergence (§4.3: 0.5).
     pub beta_shrink: f64,
