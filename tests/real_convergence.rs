@@ -16,6 +16,15 @@ mod simulation;
 use common::data_dir;
 use sie::{Hooks, RegistrationResult, StopReason, Verdict, register_clouds};
 
+/// SIE on the pair from `init` (the identity when `None`) by `config`.
+fn register_pair(
+    case: &scans::PairCase,
+    init: Option<&nalgebra::Matrix4<f64>>,
+    config: &sie::RegistrationConfig,
+) -> RegistrationResult {
+    register_clouds(&case.source, &case.target, None, init, config, Hooks::default()).expect("valid frames")
+}
+
 /// One run's line in the test's output: the pair, its errors and how it ended.
 fn describe(case: &scans::PairCase, result: &RegistrationResult) -> String {
     let (degrees, metres) = case.errors(&result.transform);
@@ -43,15 +52,7 @@ fn kinect_frames_that_cycled_at_the_cap_now_converge_where_right() {
         let methods = case.methods();
         let sie = &methods[0];
         assert_eq!(sie.key, "sie");
-        let result = register_clouds(
-            &case.source,
-            &case.target,
-            None,
-            None,
-            &sie.config,
-            Hooks::default(),
-        )
-        .expect("valid frames");
+        let result = register_pair(case, None, &sie.config);
         let errors = case.errors(&result.transform);
         println!("{}", describe(case, &result));
         if case.success(errors) {
@@ -84,15 +85,7 @@ fn right_runs_on_the_kinect_frames_are_good() {
     for (seed, case) in cases.iter().enumerate() {
         let sie = &case.methods()[0];
         for (start, init) in case.starts(seed as u64) {
-            let result = register_clouds(
-                &case.source,
-                &case.target,
-                None,
-                Some(&init),
-                &sie.config,
-                Hooks::default(),
-            )
-            .expect("valid frames");
+            let result = register_pair(case, Some(&init), &sie.config);
             let errors = case.errors(&result.transform);
             let good = result.quality.verdict == Verdict::Good;
             println!("[{start}] {}", describe(case, &result));
@@ -125,15 +118,11 @@ fn kinect_frames_from_a_constant_velocity_guess_converge_where_right() {
     let mut right = 0;
     for pair in constant.windows(2) {
         let (previous, case) = (pair[0], pair[1]);
-        let result = register_clouds(
-            &case.source,
-            &case.target,
-            None,
+        let result = register_pair(
+            case,
             Some(&previous.ground_truth),
             &sie::RegistrationConfig::default(),
-            Hooks::default(),
-        )
-        .expect("valid frames");
+        );
         let errors = case.errors(&result.transform);
         println!("{}", describe(case, &result));
         if case.success(errors) {

@@ -68,14 +68,13 @@ impl Extrapolation {
             return *to;
         };
         let extrapolated = orthonormalised(&(power(&(to * inverse), factor) * to));
+        if !extrapolated.iter().all(|v| v.is_finite()) {
+            return *to;
+        }
         // The next extrapolation needs two plain updates from here.
         self.before = None;
         self.last = Some(extrapolated);
-        if extrapolated.iter().all(|v| v.is_finite()) {
-            extrapolated
-        } else {
-            *to
-        }
+        extrapolated
     }
 }
 
