@@ -74,10 +74,10 @@ pub use geometry::LooseDirection;
 pub use noise::{CloudRole, NoiseModel, NoiseScales};
 pub use point::{NonFinite, Point};
 pub use registration::{
-    FrameOutcome, FrameStatus, Hooks, MIN_CONDITIONING, MIN_MARGIN, Metric, NORMAL_LENGTH_TOLERANCE,
-    Observer, Odometry, PoseUncertainty, PrepareOptions, PreparedTarget, Quality, RegistrationConfig,
-    RegistrationResult, SearchReport, StageTimes, StartKind, Starts, StopReason, TraceEntry, Verdict,
-    register_clouds, register_clouds_to, register_correspondences,
+    FrameOutcome, FrameStatus, Hooks, MIN_CONDITIONING, MIN_MARGIN, MIN_SCALED_RATIO, Metric,
+    NORMAL_LENGTH_TOLERANCE, Observer, Odometry, PoseUncertainty, PrepareOptions, PreparedTarget, Quality,
+    RegistrationConfig, RegistrationResult, ScaledSource, SearchReport, StageTimes, StartKind, Starts,
+    StopReason, TraceEntry, Verdict, register_clouds, register_clouds_to, register_correspondences,
 };
 pub use sie::{
     GammaRule, GeneralisedGaussian, HistogramMode, HistogramModel, InlierEstimate, MIN_ESTIMATE_ROWS,

@@ -166,6 +166,17 @@ pub struct QualityReport {
     /// The direction the inliers' surfaces constrain least, when their measure set
     /// `conditioning` (null otherwise).
     pub loose_direction: Option<LooseDirectionRow>,
+    /// A fit that scales the source and explains the data better (null when none did).
+    pub scaled_source: Option<ScaledSourceRow>,
+}
+
+/// `Quality::scaled_source`.
+#[derive(Serialize)]
+pub struct ScaledSourceRow {
+    /// The source's scale against the target that the fit found.
+    pub scale: f64,
+    /// Its inliers' significance over the result's.
+    pub significance_ratio: f64,
 }
 
 /// `Quality::loose_direction`: "translation" along `axis`, or "rotation" about `axis` through
@@ -233,6 +244,10 @@ pub fn quality_report(result: &RegistrationResult) -> QualityReport {
             .then_some(quality.sigma_to_spacing),
         margin: quality.margin.is_finite().then_some(quality.margin),
         loose_direction: quality.loose_direction.map(LooseDirectionRow::of),
+        scaled_source: quality.scaled_source.map(|scaled| ScaledSourceRow {
+            scale: scaled.scale,
+            significance_ratio: scaled.significance_ratio,
+        }),
     }
 }
 
@@ -317,6 +332,14 @@ pub fn verdict_line(result: &RegistrationResult) -> String {
                 weak.push(format!(
                     "another start ended elsewhere nearly as significant (margin {})",
                     significant(q.margin)
+                ));
+            }
+            if let Some(scaled) = q.scaled_source {
+                weak.push(format!(
+                    "the source scaled by {} fits {} x as significantly (clouds of different \
+                     scale, or a wrong pose)",
+                    significant(scaled.scale),
+                    significant(scaled.significance_ratio)
                 ));
             }
             if q.sigma_to_spacing > 1.0 {

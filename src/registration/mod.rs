@@ -44,7 +44,8 @@ pub use hooks::{Hooks, Observer};
 pub use input::NORMAL_LENGTH_TOLERANCE;
 pub use odometry::{FrameOutcome, FrameStatus, Odometry};
 pub use result::{
-    Quality, RegistrationResult, SearchReport, StageTimes, StartKind, StopReason, TraceEntry, Verdict,
+    Quality, RegistrationResult, ScaledSource, SearchReport, StageTimes, StartKind, StopReason, TraceEntry,
+    Verdict,
 };
 pub use target::{PrepareOptions, PreparedTarget};
-pub use verdict::{MIN_CONDITIONING, MIN_MARGIN};
+pub use verdict::{MIN_CONDITIONING, MIN_MARGIN, MIN_SCALED_RATIO};

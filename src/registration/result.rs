@@ -189,6 +189,22 @@ pub struct Quality {
     /// `conditioning` (it names what a low conditioning leaves free: "translation along x");
     /// `None` when the solve's own conditioning was the smaller, or for correspondences.
     pub loose_direction: Option<LooseDirection>,
+    /// ICP: a fit that also scales the source, started from the result, whose inliers stand out
+    /// [`MIN_SCALED_RATIO`](crate::MIN_SCALED_RATIO) times as much as the result's: no rigid
+    /// pose explains the data as well (the clouds differ in scale, or the pose is wrong), and the
+    /// verdict is DOUBTFUL. `None` when no such fit was found (or none was tried: the result was
+    /// not GOOD otherwise, or correspondences).
+    pub scaled_source: Option<ScaledSource>,
+}
+
+/// See [`Quality::scaled_source`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaledSource {
+    /// The scale of the source against the target that the fit found.
+    pub scale: f64,
+    /// The significance of that fit's inliers over the result's (both scale-free, on the same
+    /// subset of the source).
+    pub significance_ratio: f64,
 }
 
 /// Where the returned transform came from.

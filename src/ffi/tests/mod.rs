@@ -122,6 +122,7 @@ fn sample_result() -> RegistrationResult {
             conditioning: 0.25,
             sigma_to_spacing: 0.75,
             loose_direction: None,
+            scaled_source: None,
             margin: 41.5 / 12.0,
         },
         trace: vec![TraceEntry {

@@ -175,6 +175,7 @@ fn summary_encodes_verdicts_starts_and_unbounded_values_finitely() {
             conditioning: 0.5,
             sigma_to_spacing: f64::INFINITY,
             loose_direction: None,
+            scaled_source: None,
             margin: f64::INFINITY,
         };
         result.search = SearchReport {

@@ -447,6 +447,18 @@ impl<'a> CloudProblem<'a> {
     }
 }
 
+/// One row of [`CloudProblem::evidence_matches`].
+pub(crate) struct EvidenceMatch {
+    /// The source point moved by the transform matched at.
+    pub(crate) moved: Point,
+    /// Its nearest target point.
+    pub(crate) target: Point,
+    /// The target point's unit normal; zero for point-to-point.
+    pub(crate) normal: Point,
+    /// The row's noise scale F (§4.4).
+    pub(crate) scale: f64,
+}
+
 /// Residuals of source points within this many target spacings of each other lean on the
 /// same target points and normals (10 neighbours span about two spacings): their errors are
 /// taken as correlated in the pose's covariance.
@@ -507,6 +519,30 @@ impl CloudProblem<'_> {
                 r.iter().map(|v| v * v).sum::<f64>() <= radius_squared * f * f
             })
             .map(|((k, _), _)| transform_point(transform, &pass.points[k]))
+            .collect()
+    }
+
+    /// The evidence subset's rows at `transform` (which may scale as well as move) with what
+    /// a fit of that transform needs of each: the moved source point, its matched target point,
+    /// the target's normal (zero for point-to-point: its target has none, and estimating them
+    /// here would change what later registrations on a shared target see) and the row's noise
+    /// scale F. Leaves the
+    /// problem's rows at the evidence subset's.
+    pub(crate) fn evidence_matches(&mut self, transform: &Matrix4<f64>) -> Vec<EvidenceMatch> {
+        self.match_and_fill(transform, Purpose::Evidence);
+        let pass = self.pass(self.pass_for(Purpose::Evidence));
+        let (plane, target) = (self.metric == Metric::PointToPlane, self.target);
+        self.rows_of(pass)
+            .enumerate()
+            .map(|(row, (k, m))| {
+                let t = m.nearest as usize;
+                EvidenceMatch {
+                    moved: transform_point(transform, &pass.points[k]),
+                    target: target.points()[t],
+                    normal: if plane { target.normals().get(t) } else { [0.0; 3] },
+                    scale: self.rows.scale.get(row),
+                }
+            })
             .collect()
     }
 

@@ -15,7 +15,7 @@ use crate::noise::combine;
 use crate::point::Point;
 use crate::registration::covariance::{PoseUncertainty, RowWeight};
 use crate::registration::degeneracy::SurfaceRow;
-pub(crate) use cloud::CloudProblem;
+pub(crate) use cloud::{CloudProblem, EvidenceMatch};
 pub(crate) use pairs::CorrespondenceProblem;
 
 /// The noise scale F of each row (§4.4).

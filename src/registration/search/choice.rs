@@ -18,7 +18,9 @@ use crate::geometry::{LooseDirection, rotation_part, translation_part};
 use crate::registration::degeneracy::SurfaceRow;
 use crate::registration::irls::{FinalModel, PendingPerPoint};
 use crate::registration::problem::{Problem, moved_apart};
-use crate::registration::result::{RegistrationResult, StartKind, StopReason, TraceEntry, Verdict};
+use crate::registration::result::{
+    RegistrationResult, ScaledSource, StartKind, StopReason, TraceEntry, Verdict,
+};
 use crate::registration::verdict::{Evidence, MIN_CONDITIONING, MIN_MARGIN, verdict, verdict_with};
 
 /// The most significant result of SIE from several starts on one problem, each judged on
@@ -35,6 +37,8 @@ pub(crate) struct BestOfStarts {
     pub(crate) starts_run: u32,
     /// Every start's trace entries, in the order they ran (the result reports all updates).
     pub(crate) trace: Vec<TraceEntry>,
+    /// A scaled source that explains the data better than the best (`scaled_source`).
+    pub(crate) scaled_source: Option<ScaledSource>,
 }
 
 /// Where a start ended, and how precisely its data place it there (both as row
@@ -92,6 +96,7 @@ impl BestOfStarts {
             typical_scale: 1.0,
             starts_run: 0,
             trace: Vec::new(),
+            scaled_source: None,
         }
     }
 
@@ -302,6 +307,7 @@ impl BestOfStarts {
         } else {
             f64::INFINITY
         };
+        result.quality.scaled_source = self.scaled_source;
         result.quality.verdict = verdict(&result);
         // Last: the rows the agreement above was measured with are the last start's.
         if let Some(model) = model.filter(|_| parked) {

@@ -17,6 +17,7 @@ use nalgebra::{Matrix4, Translation3};
 use super::choice::BestOfStarts;
 use super::half_turns::{HalfTurns, SETTLE_UPDATES};
 use super::period_shifts::period_shifts;
+use super::scaled_source::fit_scaled;
 use crate::registration::hooks::Observer;
 use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending, settle};
 use crate::registration::problem::{CloudProblem, Problem, moved_apart};
@@ -244,7 +245,7 @@ fn rerun_from_best(
 /// settled, offered as another start: a better rival wins, one nearly as good lowers the
 /// margin. The rivals are its half turns (`half_turns`) and its shifts by a period of
 /// structure its inliers repeat (`period_shifts`, screened as shifted: they need no settling
-/// to come near).
+/// to come near). Then a fit that scales the source (`scaled_source`) challenges the best.
 pub(crate) fn challenge_with_rivals(
     problem: &mut CloudProblem<'_>,
     best: &mut BestOfStarts,
@@ -284,6 +285,14 @@ pub(crate) fn challenge_with_rivals(
         }
         if !best.offer(problem, result, Some(pending), kind) {
             return;
+        }
+    }
+    // Last, at the pose that stays: whether a scaled source explains the data better. Only a
+    // result that is GOOD on its own evidence has a verdict to lose.
+    if best.best_is_good_alone() {
+        if let Some((transform, sigma)) = best.best_pose() {
+            let fit = fit_scaled(problem, &best.evidence, &transform, sigma);
+            best.scaled_source = fit.and_then(|fit| fit.rival());
         }
     }
 }
