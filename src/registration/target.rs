@@ -506,6 +506,16 @@ impl PreparedTarget {
         }
     }
 
+    /// Normals at the curve-order targets `targets` from their `normal_neighbours` nearest
+    /// points, at the scale estimated normals use, not kept: for a point-to-point registration's
+    /// checks, which must leave a shared target's normals as its registrations found them.
+    pub(crate) fn normals_not_kept(&self, targets: &[u32], workers: &Workers) -> Vec<Point> {
+        let queries: Vec<Point> = targets.iter().map(|&t| self.points[t as usize]).collect();
+        let k = self.normal_neighbours.min(self.points.len());
+        self.normal_scale(workers)
+            .normals_at(&self.points, &self.index, &queries, k, workers)
+    }
+
     /// Normals at the curve-order targets `targets`, at the scale estimated normals use (given
     /// normals or not), not kept. First from their `neighbours` nearest points: with more
     /// neighbours than `normal_neighbours`, a view of the surfaces in which the points' noise

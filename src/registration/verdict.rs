@@ -164,9 +164,9 @@ pub const MIN_MARGIN: f64 = 2.0;
 
 /// [`Quality::scaled_source`](crate::Quality::scaled_source): a fit that scales the source makes
 /// the verdict DOUBTFUL when its inliers stand out this many times as much as the rigid
-/// result's. Right runs on the real-scan table reach 1.05 (a scaled fit absorbs some noise and
-/// the scanners' own scale differences of 0.1–0.5 %); the synthetic room scaled by 0.95, 1.05 or
-/// 1.1 gives 1.3–9 (docs/results.md, "A scaled source").
+/// result's refitted alike. Right runs on the real-scan table reach 1.04 (1.12 point-to-point: a
+/// scaled fit absorbs some noise and the scanners' own scale differences of 0.1–1 %); the
+/// synthetic room scaled by 0.95–1.1 gives 1.8–14 (docs/results.md, "A scaled source").
 pub const MIN_SCALED_RATIO: f64 = 1.2;
 
 /// The verdict from the evidence in `result.quality` and the fitted histograms.

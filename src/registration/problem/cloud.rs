@@ -1,6 +1,7 @@
 //! ICP: nearest-neighbour correspondences onto a prepared target (kd-tree and normals shared,
 //! see `PreparedTarget`), matched in passes over subsets of the source with cached queries.
 
+use std::collections::HashMap;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
@@ -524,14 +525,29 @@ impl CloudProblem<'_> {
 
     /// The evidence subset's rows at `transform` (which may scale as well as move) with what
     /// a fit of that transform needs of each: the moved source point, its matched target point,
-    /// the target's normal (zero for point-to-point: its target has none, and estimating them
-    /// here would change what later registrations on a shared target see) and the row's noise
-    /// scale F. Leaves the
-    /// problem's rows at the evidence subset's.
-    pub(crate) fn evidence_matches(&mut self, transform: &Matrix4<f64>) -> Vec<EvidenceMatch> {
+    /// the target's normal and the row's noise scale F. Point-to-point's targets have no normals
+    /// of their own: theirs are estimated into `own_normals` (curve-order target → normal), kept
+    /// by the caller across calls and not in the target, whose later registrations must not see
+    /// them. Leaves the problem's rows at the evidence subset's.
+    pub(crate) fn evidence_matches(
+        &mut self,
+        transform: &Matrix4<f64>,
+        own_normals: &mut HashMap<u32, Point>,
+    ) -> Vec<EvidenceMatch> {
         self.match_and_fill(transform, Purpose::Evidence);
         let pass = self.pass(self.pass_for(Purpose::Evidence));
         let (plane, target) = (self.metric == Metric::PointToPlane, self.target);
+        if !plane {
+            let mut missing: Vec<u32> = self
+                .rows_of(pass)
+                .map(|(_, m)| m.nearest)
+                .filter(|t| !own_normals.contains_key(t))
+                .collect();
+            missing.sort_unstable();
+            missing.dedup();
+            let found = target.normals_not_kept(&missing, &self.workers);
+            own_normals.extend(missing.into_iter().zip(found));
+        }
         self.rows_of(pass)
             .enumerate()
             .map(|(row, (k, m))| {
@@ -539,7 +555,11 @@ impl CloudProblem<'_> {
                 EvidenceMatch {
                     moved: transform_point(transform, &pass.points[k]),
                     target: target.points()[t],
-                    normal: if plane { target.normals().get(t) } else { [0.0; 3] },
+                    normal: if plane {
+                        target.normals().get(t)
+                    } else {
+                        own_normals.get(&m.nearest).copied().unwrap_or([0.0; 3])
+                    },
                     scale: self.rows.scale.get(row),
                 }
             })

@@ -246,6 +246,11 @@ impl BestOfStarts {
             .map(|best| (best.result.transform, best.result.sigma_rms()))
     }
 
+    /// The best result's inlier fraction (0 if no start ran).
+    pub(crate) fn best_inlier_fraction(&self) -> f64 {
+        self.best.as_ref().map_or(0.0, |best| best.result.inlier_fraction)
+    }
+
     /// Whether the best result so far is GOOD on its own evidence, with no other start to
     /// compare it with.
     pub(crate) fn best_is_good_alone(&self) -> bool {

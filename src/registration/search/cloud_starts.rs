@@ -291,7 +291,13 @@ pub(crate) fn challenge_with_rivals(
     // result that is GOOD on its own evidence has a verdict to lose.
     if best.best_is_good_alone() {
         if let Some((transform, sigma)) = best.best_pose() {
-            let fit = fit_scaled(problem, &best.evidence, &transform, sigma);
+            let fit = fit_scaled(
+                problem,
+                &best.evidence,
+                &transform,
+                sigma,
+                best.best_inlier_fraction(),
+            );
             best.scaled_source = fit.and_then(|fit| fit.rival());
         }
     }

@@ -9,14 +9,19 @@
 //! with SIE's annealing: Gaussian weights of a scale β that starts at the RMS residual (every
 //! row has a say, so the far parts pull the scale) and shrinks to the result's fitted σ (only
 //! the inliers are left to hold it). The scaled source is a rival when its inliers stand out
-//! `MIN_SCALED_RATIO` times as much as the rigid result's: the scale-free significance of the
-//! point-to-plane residuals of both on the evidence subset.
+//! `MIN_SCALED_RATIO` times as much as those of the rigid result refitted alike: the
+//! scale-free significance of the point-to-plane residuals of both on the evidence subset, in
+//! both metrics (point-to-point's residuals are mostly the sampling's offsets along the
+//! surfaces, which no scale removes).
+
+use std::collections::HashMap;
 
 use nalgebra::{Matrix4, Rotation3, SMatrix, SVector, Vector3};
 
+use crate::point::Point;
 use crate::registration::problem::{CloudProblem, EvidenceMatch, Problem};
 use crate::registration::result::ScaledSource;
-use crate::registration::significance::BinnedSignificance;
+use crate::registration::significance::{Background, BinnedSignificance};
 use crate::registration::verdict::{Evidence, MIN_SCALED_RATIO};
 
 /// A similarity fitted where the rigid result holds only part of the data.
@@ -26,7 +31,7 @@ pub(crate) struct ScaledFit {
     pub(crate) scale: f64,
     /// The scale-free significance of the scaled fit's rows on the evidence subset …
     pub(crate) significance: f64,
-    /// … and of the rigid result's.
+    /// … and of the rigid result refitted to the same residuals.
     pub(crate) rigid_significance: f64,
 }
 
@@ -63,25 +68,104 @@ pub(crate) fn fit_scaled(
     evidence: &Evidence,
     rigid: &Matrix4<f64>,
     sigma: f64,
+    inlier_fraction: f64,
 ) -> Option<ScaledFit> {
     let cols = problem.cols();
-    let start = problem.evidence_matches(rigid);
-    let rigid_significance = significance(problem, evidence, rigid, &start);
+    // Point-to-point's targets' normals, estimated as its matches reach them.
+    let mut own_normals = HashMap::new();
+    let start = problem.evidence_matches(rigid, &mut own_normals);
     if start.len() < MIN_ROWS || sigma.is_nan() || sigma <= 0.0 {
         return None;
     }
+    // The rigid fit judged alike: refitted to the same residuals with the same weights at σ
+    // (point-to-point's result is the optimum of other residuals; a scaled fit measured against
+    // it would win by the change of residual alone).
+    let mut refit = *rigid;
+    for _ in 0..FINAL_UPDATES {
+        let matches = problem.evidence_matches(&refit, &mut own_normals);
+        refit = update(&matches, sigma, Freedom::Rigid)? * refit;
+    }
+    let rigid_significance =
+        plane_significance(&problem.evidence_matches(&refit, &mut own_normals), evidence);
     // β₀ per residual component of the problem's metric, as SIE's is (point-to-point: the plane
     // residuals' mean square over three components; the measured schedule).
     let rms = (start.iter().map(squared_residual).sum::<f64>() / (start.len() * cols) as f64).sqrt();
-    let mut beta = rms.max(sigma);
-    let mut similarity = *rigid;
+    let centre = centroid(&start);
+    let mut best: Option<ScaledFit> = None;
+    let initial_scales = if inlier_fraction < FEW_INLIERS {
+        &INITIAL_SCALES[..]
+    } else {
+        &INITIAL_SCALES[..1]
+    };
+    let schedule = Schedule {
+        first_beta: rms.max(sigma),
+        last_beta: sigma,
+    };
+    for &initial_scale in initial_scales {
+        let from = scaled_about(&centre, initial_scale) * rigid;
+        let Some(fit) = anneal(problem, evidence, from, &schedule, &mut own_normals) else {
+            continue;
+        };
+        if best.is_none_or(|b| fit.significance > b.significance) {
+            best = Some(ScaledFit {
+                rigid_significance,
+                ..fit
+            });
+        }
+    }
+    best
+}
+
+/// The scales the annealed fits start from (about the evidence rows' centroid): a scaling of
+/// 10 % moves a far part of a scene out of reach of the wide first levels that start at 1 …
+const INITIAL_SCALES: [f64; 3] = [1.0, 1.1, 1.0 / 1.1];
+/// … when the rigid result holds less than this fraction of the points (a corner of a room
+/// scaled by 0.9: 16–51 %). One that holds more leaves no far part that large a scale would
+/// move away, and the fit from 1 reaches the scale.
+const FEW_INLIERS: f64 = 0.6;
+
+/// The centroid of the moved points.
+fn centroid(matches: &[EvidenceMatch]) -> Vector3<f64> {
+    matches
+        .iter()
+        .map(|m| Vector3::from(m.moved))
+        .sum::<Vector3<f64>>()
+        / matches.len().max(1) as f64
+}
+
+/// β of the annealed fits: from `first_beta` down to `last_beta` (the result's σ).
+struct Schedule {
+    first_beta: f64,
+    last_beta: f64,
+}
+
+/// The map scaling points by `scale` about `centre`.
+fn scaled_about(centre: &Vector3<f64>, scale: f64) -> Matrix4<f64> {
+    let mut map = Matrix4::identity();
+    map.fixed_view_mut::<3, 3>(0, 0).scale_mut(scale);
+    map.fixed_view_mut::<3, 1>(0, 3)
+        .copy_from(&(centre - scale * centre));
+    map
+}
+
+/// One annealed similarity fit from `start` (its scale-free significance left 0 for the rigid
+/// one: the caller's).
+fn anneal(
+    problem: &mut CloudProblem<'_>,
+    evidence: &Evidence,
+    start: Matrix4<f64>,
+    schedule: &Schedule,
+    own_normals: &mut HashMap<u32, Point>,
+) -> Option<ScaledFit> {
+    let (mut beta, sigma) = (schedule.first_beta, schedule.last_beta);
+    let mut similarity = start;
     let mut levels = 0;
     loop {
         let last = beta <= sigma || levels >= MAX_LEVELS;
         let updates = if last { FINAL_UPDATES } else { UPDATES_PER_LEVEL };
         for _ in 0..updates {
-            let matches = problem.evidence_matches(&similarity);
-            similarity = update(&matches, beta)? * similarity;
+            let matches = problem.evidence_matches(&similarity, own_normals);
+            similarity = update(&matches, beta, Freedom::Similarity)? * similarity;
         }
         if last {
             break;
@@ -93,29 +177,25 @@ pub(crate) fn fit_scaled(
     if !(scale.is_finite() && scale > 0.0) {
         return None;
     }
-    let matches = problem.evidence_matches(&similarity);
-    let significance = significance(problem, evidence, &similarity, &matches);
+    let matches = problem.evidence_matches(&similarity, own_normals);
     Some(ScaledFit {
         scale,
-        significance,
-        rigid_significance,
+        significance: plane_significance(&matches, evidence),
+        rigid_significance: 0.0,
     })
 }
 
-/// The scale-free significance of the evidence rows at `transform` (`matches`, matched there):
-/// point-to-plane, of the residuals of the rows with a target normal; point-to-point, of its
-/// own rows (`Evidence::screen`).
-fn significance(
-    problem: &mut CloudProblem<'_>,
-    evidence: &Evidence,
-    transform: &Matrix4<f64>,
-    matches: &[EvidenceMatch],
-) -> f64 {
-    let cols = problem.cols();
-    if cols != 1 {
-        return evidence.screen(problem.evaluate_evidence(transform), cols);
-    }
-    BinnedSignificance::new(evidence.background())
+/// The scale-free significance of the matches' point-to-plane residuals (those whose target has
+/// a normal) against the evidence's background per residual component: in both metrics, since a
+/// point-to-point residual is mostly the sampling's offset along the surface, which no scale
+/// removes.
+fn plane_significance(matches: &[EvidenceMatch], evidence: &Evidence) -> f64 {
+    let background = evidence.background();
+    let per_component = Background {
+        spread_squared: background.spread_squared / background.dims.max(1) as f64,
+        dims: 1,
+    };
+    BinnedSignificance::new(per_component)
         .evaluate(
             matches
                 .iter()
@@ -153,9 +233,18 @@ fn weighted_centroid(matches: &[EvidenceMatch], beta: f64) -> Option<(Vector3<f6
     (total > 0.0).then(|| (sum / total, total))
 }
 
-/// One weighted Gauss-Newton update of the similarity about the inliers' centroid c: a point x
-/// moves to c + e^λ·R(ω)·(x − c) + v; returned as that map.
-fn update(matches: &[EvidenceMatch], beta: f64) -> Option<Matrix4<f64>> {
+/// What an update may change.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Freedom {
+    /// Rotation and translation.
+    Rigid,
+    /// Rotation, translation and scale.
+    Similarity,
+}
+
+/// One weighted Gauss-Newton update about the inliers' centroid c: a point x moves to
+/// c + e^λ·R(ω)·(x − c) + v (λ = 0 for a rigid update); returned as that map.
+fn update(matches: &[EvidenceMatch], beta: f64, freedom: Freedom) -> Option<Matrix4<f64>> {
     let (centre, _) = weighted_centroid(matches, beta)?;
     let mut normal = SMatrix::<f64, 7, 7>::zeros();
     let mut rhs = SVector::<f64, 7>::zeros();
@@ -189,6 +278,14 @@ fn update(matches: &[EvidenceMatch], beta: f64) -> Option<Matrix4<f64>> {
                 add(jacobian / f, d[axis] / f, w);
             }
         }
+    }
+    if freedom == Freedom::Rigid {
+        for i in 0..7 {
+            normal[(6, i)] = 0.0;
+            normal[(i, 6)] = 0.0;
+        }
+        normal[(6, 6)] = 1.0;
+        rhs[6] = 0.0;
     }
     // A tiny ridge keeps a direction the weighted rows leave free (a plane's slide) at zero.
     let ridge = 1e-9 * (0..7).map(|i| normal[(i, i)]).fold(0.0, f64::max);
