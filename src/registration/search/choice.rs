@@ -358,7 +358,12 @@ impl Looseness {
             return false;
         };
         let step = to * inverse;
-        let rotation = Rotation3::from_matrix(&rotation_part(&step));
+        // nalgebra's `from_matrix` iterates until it converges, which a non-finite matrix (a
+        // start that left f64's range) never does: such a move slides nowhere.
+        if !step.iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        let rotation = Rotation3::from_matrix_eps(&rotation_part(&step), 1e-12, 100, Rotation3::identity());
         let aligned = |a: &Vector3<f64>, axis: &[f64; 3]| {
             let norm = a.norm();
             norm > 0.0 && (a.dot(&Vector3::from(*axis)) / norm).abs() >= SLIDE_ALIGNMENT
@@ -381,3 +386,35 @@ const SAME_POSE_TIE: f64 = 1.05;
 const SAME_POSE_ERRORS: f64 = 3.0;
 /// … or, when judging rivals, this many noise widths.
 const SAME_POSE_WIDTHS: f64 = 1.0;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A move with a non-finite entry (a start whose transform left f64's range) slides along
+    /// no direction, and deciding so ends: nalgebra's iteration to the nearest rotation never
+    /// converged on it (an odometry fuzz input ran for more than 10 minutes).
+    #[test]
+    fn a_non_finite_move_slides_nowhere_and_returns() {
+        let loose = Looseness::Loose(Some(LooseDirection::Translation([1.0, 0.0, 0.0])));
+        let from = Matrix4::identity();
+        let mut sliding = Matrix4::identity();
+        sliding[(0, 3)] = 0.5;
+        assert!(
+            loose.slides_between(&from, &sliding),
+            "a move along the loose axis slides"
+        );
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let mut to = Matrix4::identity();
+            to[(0, 0)] = bad;
+            assert!(!loose.slides_between(&from, &to), "{bad}");
+            let mut far = sliding;
+            far[(1, 3)] = bad;
+            assert!(!loose.slides_between(&from, &far), "{bad} in the translation");
+        }
+        let spin = Looseness::Loose(Some(LooseDirection::Rotation([0.0, 0.0, 1.0])));
+        let mut to = Matrix4::identity();
+        to[(1, 1)] = f64::NAN;
+        assert!(!spin.slides_between(&from, &to));
+    }
+}
