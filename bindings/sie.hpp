@@ -124,6 +124,7 @@ enum class StartKind : std::uint32_t {
     HalfTurn = SIE_START_KIND_HALF_TURN,
     PeriodShift = SIE_START_KIND_PERIOD_SHIFT,
     FeatureMatch = SIE_START_KIND_FEATURE_MATCH,
+    QuarterTurn = SIE_START_KIND_QUARTER_TURN,
 };
 
 /** What became of a frame given to Context::register_frame. A frame refused as input throws
@@ -202,6 +203,8 @@ inline const char *to_string(StartKind start) noexcept {
         return "period shift";
     case StartKind::FeatureMatch:
         return "feature match";
+    case StartKind::QuarterTurn:
+        return "quarter turn";
     }
     return "unknown";
 }

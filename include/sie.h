@@ -414,6 +414,11 @@ enum sie_start_kind
      * SIE (clouds).
      */
     SIE_START_KIND_FEATURE_MATCH = 7,
+    /**
+     * Another start's result turned a quarter turn about one of its inliers' principal axes
+     * and re-centred on the target (a room's rival pose), then SIE (clouds).
+     */
+    SIE_START_KIND_QUARTER_TURN = 8,
 };
 #ifndef __cplusplus
 #if __STDC_VERSION__ >= 202311L
@@ -914,7 +919,7 @@ sie_status sie_context_set_warm_start(struct sie_context *ctx, const struct sie_
 
 /**
  * Caps the number of updates of each start (>= 1; several starts may run: the automatic ones,
- * a single start's rerun from its result, half turns and period shifts, and
+ * a single start's rerun from its result, half and quarter turns and period shifts, and
  * `sie_summary.iterations` counts the updates of all of them). Default: 200.
  *
  * # Safety

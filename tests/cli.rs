@@ -190,8 +190,8 @@ fn trace_prints_one_row_per_iteration() {
         "the result is none of the {} updates",
         trace.len()
     );
-    // From the initial guess alone the last row is the result (the run travelled, so it ran again
-    // from its result, stayed, and that second run is kept).
+    // From the initial guess alone every start ends at the result (the run travelled, so it ran
+    // again from its result and stayed; a rival may run after it and end there too).
     let output = sie(&[
         "register",
         arg(&b.source),
@@ -204,15 +204,19 @@ fn trace_prints_one_row_per_iteration() {
     ]);
     assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
     let report = json(&output);
-    assert_eq!(report["search"]["starts_run"], 2);
-    assert_eq!(report["search"]["agreeing_starts"], 2);
+    // A rival (a quarter turn of the travelled result) may run after it and end there too.
+    let starts = report["search"]["starts_run"].as_u64().unwrap();
+    assert!(starts >= 2, "{starts} starts");
+    assert_eq!(report["search"]["agreeing_starts"].as_u64().unwrap(), starts);
     let trace = report["trace"].as_array().unwrap();
     assert_eq!(report["iterations"].as_u64().unwrap() as usize, trace.len());
-    let last = trace.last().unwrap();
-    assert_eq!(last["transform"], report["transform"]);
+    let kept = trace
+        .iter()
+        .find(|row| row["transform"] == report["transform"])
+        .expect("the result is one of the updates");
     // One meaning of "inlier fraction": the converged run's last update and the summary agree.
     let (progress, summary) = (
-        last["inlier_fraction"].as_f64().unwrap(),
+        kept["inlier_fraction"].as_f64().unwrap(),
         report["inlier_fraction"].as_f64().unwrap(),
     );
     assert!((progress - summary).abs() < 0.01, "{progress} vs {summary}");

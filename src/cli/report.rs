@@ -263,6 +263,7 @@ pub fn search_row(result: &RegistrationResult) -> SearchRow {
             StartKind::HalfTurn => "half_turn",
             StartKind::PeriodShift => "period_shift",
             StartKind::FeatureMatch => "feature_match",
+            StartKind::QuarterTurn => "quarter_turn",
         },
         starts_run: search.starts_run,
         hypotheses: search.hypotheses,

@@ -262,6 +262,9 @@ pub enum sie_start_kind {
     /// A pose proposed by matching FPFH descriptors of the two clouds (SIE_STARTS_GLOBAL), then
     /// SIE (clouds).
     FeatureMatch = 7,
+    /// Another start's result turned a quarter turn about one of its inliers' principal axes
+    /// and re-centred on the target (a room's rival pose), then SIE (clouds).
+    QuarterTurn = 8,
 }
 
 /// Which cloud a noise callback call is about (its `cloud` argument).

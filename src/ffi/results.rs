@@ -50,6 +50,7 @@ fn summary_of(result: &RegistrationResult, init_correction: f64) -> sie_summary 
         StartKind::HalfTurn => sie_start_kind::HalfTurn,
         StartKind::PeriodShift => sie_start_kind::PeriodShift,
         StartKind::FeatureMatch => sie_start_kind::FeatureMatch,
+        StartKind::QuarterTurn => sie_start_kind::QuarterTurn,
     };
     sie_summary {
         sigma: first_three(&result.sigma),

@@ -149,7 +149,7 @@ pub unsafe extern "C" fn sie_context_set_warm_start(
 }
 
 /// Caps the number of updates of each start (>= 1; several starts may run: the automatic ones,
-/// a single start's rerun from its result, half turns and period shifts, and
+/// a single start's rerun from its result, half and quarter turns and period shifts, and
 /// `sie_summary.iterations` counts the updates of all of them). Default: 200.
 ///
 /// # Safety

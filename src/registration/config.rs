@@ -59,8 +59,9 @@ pub struct RegistrationConfig {
     /// Where SIE starts (SIE only; baselines start from the initial guess).
     pub starts: Starts,
     /// Cap on IRLS updates (each is one match + weight + solve step) of each start
-    /// (`Starts::Automatic` runs several, a single start that travelled is run again, half turns
-    /// and period shifts are run as starts; `RegistrationResult::iterations` counts them all).
+    /// (`Starts::Automatic` runs several, a single start that travelled is run again, half and
+    /// quarter turns and period shifts are run as starts; `RegistrationResult::iterations`
+    /// counts them all).
     pub max_iterations: u32,
     /// Converged when the update moves the source centroid by less than this (input units) …
     pub translation_tolerance: f64,

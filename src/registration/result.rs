@@ -48,6 +48,21 @@ pub enum StartKind {
     /// A pose proposed by matching FPFH descriptors of the two clouds (`Starts::Global`), then
     /// SIE (ICP).
     FeatureMatch,
+    /// The result of another start turned a quarter turn about one of its inliers' principal
+    /// axes, re-centred on the target (a room's rival pose, `search::quarter_turns`), then SIE
+    /// (ICP).
+    QuarterTurn,
+}
+
+impl StartKind {
+    /// Whether the start is a rival built from another start's result (a half or quarter turn,
+    /// a period shift) rather than a start of the search.
+    pub(crate) fn is_rival(self) -> bool {
+        matches!(
+            self,
+            StartKind::HalfTurn | StartKind::QuarterTurn | StartKind::PeriodShift
+        )
+    }
 }
 
 /// One IRLS iteration, for plotting convergence.

@@ -86,8 +86,9 @@ pub struct PreparedTarget {
     index_seconds: f64,
     /// The units `points` are held in (the caller's unless they were beyond the safe range).
     units: Units,
-    /// [`PreparedTarget::spread`] and [`PreparedTarget::spacing`], once asked for.
-    spread: OnceLock<f64>,
+    /// [`PreparedTarget::centroid`] with [`PreparedTarget::spread`], and
+    /// [`PreparedTarget::spacing`], once asked for.
+    moments: OnceLock<(Point, f64)>,
     spacing: OnceLock<f64>,
 }
 
@@ -315,7 +316,7 @@ impl PreparedTarget {
             normal_neighbours: options.normal_neighbours,
             index_seconds,
             units,
-            spread: OnceLock::new(),
+            moments: OnceLock::new(),
             spacing: OnceLock::new(),
         })
     }
@@ -393,7 +394,16 @@ impl PreparedTarget {
     /// RMS distance of the target points from their centroid (over at most 1024 evenly
     /// strided points), in the units the points are held in. Computed once per target.
     pub(crate) fn spread(&self) -> f64 {
-        *self.spread.get_or_init(|| {
+        self.moments().1
+    }
+
+    /// Centroid of the target points (over the same points as [`PreparedTarget::spread`]).
+    pub(crate) fn centroid(&self) -> Point {
+        self.moments().0
+    }
+
+    fn moments(&self) -> (Point, f64) {
+        *self.moments.get_or_init(|| {
             let sample: Vec<Point> = self.points.iter().step_by(self.stride()).copied().collect();
             let n = sample.len().max(1) as f64;
             let centre: Point = std::array::from_fn(|axis| sample.iter().map(|p| p[axis]).sum::<f64>() / n);
@@ -401,7 +411,7 @@ impl PreparedTarget {
                 .iter()
                 .map(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>())
                 .sum();
-            (sum / n).sqrt()
+            (centre, (sum / n).sqrt())
         })
     }
 

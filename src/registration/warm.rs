@@ -64,7 +64,7 @@ pub(crate) fn run_warm(
         // (half turns, period shifts).
         let mut best = BestOfStarts::new(Evidence::around(problem, &result));
         if best.offer(problem, result, Some(pending), StartKind::WarmStart) {
-            challenge_with_rivals(problem, &mut best, &plan.cold(), observer);
+            challenge_with_rivals(problem, &mut best, &plan.cold(), &init, observer);
         }
         let judged = best.finish(problem);
         // A model can "hold" at a wrong guess that it never left: after a standstill the

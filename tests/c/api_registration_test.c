@@ -17,7 +17,8 @@ static void check_quality(const sie_summary *s, int correspondences, const char 
     CHECK(s->verdict == SIE_VERDICT_GOOD || s->verdict == SIE_VERDICT_DOUBTFUL ||
           s->verdict == SIE_VERDICT_UNSUPPORTED);
     CHECK(s->start <= SIE_START_KIND_HYPOTHESIS || s->start == SIE_START_KIND_HALF_TURN ||
-          s->start == SIE_START_KIND_PERIOD_SHIFT || s->start == SIE_START_KIND_FEATURE_MATCH);
+          s->start == SIE_START_KIND_PERIOD_SHIFT || s->start == SIE_START_KIND_FEATURE_MATCH ||
+          s->start == SIE_START_KIND_QUARTER_TURN);
     CHECK(finite_non_negative(s->significance) && finite_non_negative(s->conditioning) &&
           finite_non_negative(s->sigma_to_spacing) && finite_non_negative(s->margin) &&
           finite_non_negative(s->runner_up_significance));

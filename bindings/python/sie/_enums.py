@@ -95,6 +95,7 @@ class StartKind(_NamedEnum):
     HALF_TURN = 5  # a near-symmetric scene's rival pose (another start turned half a turn)
     PERIOD_SHIFT = 6  # a repeating scene's rival pose (another start shifted by one period)
     FEATURE_MATCH = 7  # a pose from matched FPFH descriptors (Starts.GLOBAL)
+    QUARTER_TURN = 8  # a room's rival pose (another start turned a quarter turn, re-centred)
 
 
 class FrameStatus(_NamedEnum):

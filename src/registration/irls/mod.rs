@@ -213,10 +213,11 @@ fn iterate(
     for iteration in first_iteration..first_iteration.saturating_add(stop_rule.max_updates) {
         laps.lap(&mut 0.0);
         let searching = weighting.annealing() || travelling;
-        let points = if searching || plan.matching == Matching::CoarseThroughout {
-            StepPoints::Coarse
-        } else {
-            StepPoints::Sample
+        let points = match plan.matching {
+            Matching::EvidenceThroughout => StepPoints::Evidence,
+            Matching::CoarseThroughout => StepPoints::Coarse,
+            Matching::CoarseWhileSearching if searching => StepPoints::Coarse,
+            Matching::CoarseWhileSearching => StepPoints::Sample,
         };
         problem.linearise(&transform, points);
         laps.lap(&mut times.matching);

@@ -54,6 +54,9 @@ pub(crate) enum Matching {
     CoarseWhileSearching,
     /// The coarse subset on every update: a lead only has to reach the basin.
     CoarseThroughout,
+    /// The verdict's evidence subset on every update: a rival screened by its significance
+    /// there only has to show where it leads.
+    EvidenceThroughout,
 }
 
 /// When a run stops (besides convergence as its cost defines it).
@@ -147,6 +150,15 @@ impl RunPlan {
             record_trace: false,
             final_round: FinalRound::Plain,
             ..self.cold()
+        }
+    }
+
+    /// [`RunPlan::settling`] on the evidence subset (a fifth of the coarse one): for rivals
+    /// many of which lead nowhere.
+    pub(crate) fn settling_on_evidence(&self, max_updates: u32) -> Self {
+        RunPlan {
+            matching: Matching::EvidenceThroughout,
+            ..self.settling(max_updates)
         }
     }
 

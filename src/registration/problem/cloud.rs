@@ -233,7 +233,9 @@ impl<'a> CloudProblem<'a> {
         match purpose {
             Purpose::Evaluate if self.sample.order.len() < self.source_count => Subset::Everything,
             Purpose::Step(StepPoints::Coarse) if !self.coarse.order.is_empty() => Subset::Coarse,
-            Purpose::Evidence if !self.evidence.order.is_empty() => Subset::Evidence,
+            Purpose::Evidence | Purpose::Step(StepPoints::Evidence) if !self.evidence.order.is_empty() => {
+                Subset::Evidence
+            }
             _ => Subset::Sample,
         }
     }
@@ -583,6 +585,11 @@ impl CloudProblem<'_> {
     /// See [`PreparedTarget::spacing`].
     pub(crate) fn target_spacing(&self) -> f64 {
         self.target.spacing()
+    }
+
+    /// See [`PreparedTarget::centroid`].
+    pub(crate) fn target_centroid(&self) -> Point {
+        self.target.centroid()
     }
 }
 

@@ -132,6 +132,9 @@ pub(crate) enum StepPoints {
     Coarse,
     /// Every sampled source point.
     Sample,
+    /// The verdict's evidence subset (ICP; about EVIDENCE_POINTS of the sample): where a rival
+    /// leads, judged on the same points.
+    Evidence,
 }
 
 /// What the IRLS loop needs of a registration problem.

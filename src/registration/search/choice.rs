@@ -39,6 +39,9 @@ pub(crate) struct BestOfStarts {
     pub(crate) trace: Vec<TraceEntry>,
     /// A scaled source that explains the data better than the best (`scaled_source`).
     pub(crate) scaled_source: Option<ScaledSource>,
+    /// The highest significance among the starts that are not rivals built from a result:
+    /// what a rival must beat by [`RIVAL_TIE`].
+    unrivalled_significance: f64,
 }
 
 /// Where a start ended, and how precisely its data place it there (both as row
@@ -97,6 +100,7 @@ impl BestOfStarts {
             starts_run: 0,
             trace: Vec::new(),
             scaled_source: None,
+            unrivalled_significance: 0.0,
         }
     }
 
@@ -191,7 +195,12 @@ impl BestOfStarts {
                 result: best,
                 ..
             }) => {
-                significance > *best_significance
+                let to_beat = if start.is_rival() {
+                    best_significance.max(RIVAL_TIE * self.unrivalled_significance)
+                } else {
+                    *best_significance
+                };
+                significance > to_beat
                     && (significance > SAME_POSE_TIE * *best_significance || {
                         let best_precision = self
                             .ends
@@ -204,6 +213,9 @@ impl BestOfStarts {
                     })
             }
         };
+        if !start.is_rival() {
+            self.unrivalled_significance = self.unrivalled_significance.max(significance);
+        }
         if cancelled || replaces {
             self.best = None;
             let surfaces = problem.surface_rows().to_vec();
@@ -246,9 +258,26 @@ impl BestOfStarts {
             .map(|best| (best.result.transform, best.result.sigma_rms()))
     }
 
+    /// How far the best result lies from `pose`, in its fitted σ (the RMS over the probe
+    /// points, as `cloud_starts::moved_in_widths`); 0 if no start ran.
+    pub(crate) fn best_apart_in_sigmas(&self, problem: &dyn Problem, pose: &Matrix4<f64>) -> f64 {
+        self.best.as_ref().map_or(0.0, |best| {
+            moved_apart(problem.probe_points(), pose, &best.result.transform)
+                / (self.typical_scale * best.result.sigma_rms())
+        })
+    }
+
     /// The best result's inlier fraction (0 if no start ran).
     pub(crate) fn best_inlier_fraction(&self) -> f64 {
         self.best.as_ref().map_or(0.0, |best| best.result.inlier_fraction)
+    }
+
+    /// Whether the best result's surfaces fix every direction of its pose (its conditioning
+    /// reaches the verdict's minimum).
+    pub(crate) fn best_is_constrained(&self) -> bool {
+        self.best
+            .as_ref()
+            .is_some_and(|best| best.result.quality.conditioning >= MIN_CONDITIONING)
     }
 
     /// Whether the best result so far is GOOD on its own evidence, with no other start to
@@ -380,6 +409,14 @@ impl Looseness {
 /// Between two results at the same pose, the later must be this many times as significant to
 /// replace the earlier.
 const SAME_POSE_TIE: f64 = 1.05;
+
+/// A rival built from the best result (its half or quarter turn, its period shift) must be this
+/// many times as significant as every start that is not such a rival to replace the best: a
+/// near-tie is a symmetry the data cannot break (a bare corner of three equal planes turned
+/// onto itself), and the pose the caller's guess led to is kept, its margin saying how close
+/// the call was. (Against those starts, not the best so far: among many tied rivals, as a
+/// plane has, the most significant still wins.)
+const RIVAL_TIE: f64 = 1.05;
 
 /// Two starts' results are the same pose when they are this many standard errors apart or
 /// closer (as row displacements) …

@@ -15,8 +15,9 @@
 use nalgebra::{Matrix4, Translation3};
 
 use super::choice::BestOfStarts;
-use super::half_turns::{HalfTurns, SETTLE_UPDATES};
+use super::half_turns::{QuarterTurns, SETTLE_UPDATES, TurnedRivals};
 use super::period_shifts::period_shifts;
+use super::quarter_turns::QUARTER_TURN_REACH;
 use super::scaled_source::fit_scaled;
 use crate::registration::hooks::Observer;
 use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending, settle};
@@ -173,7 +174,7 @@ pub(crate) fn register_from_starts(
             }
         }
     }
-    challenge_with_rivals(problem, &mut best, plan, observer);
+    challenge_with_rivals(problem, &mut best, plan, &init, observer);
     best.finish(problem)
 }
 
@@ -207,7 +208,7 @@ pub(crate) fn register_one_start(
     {
         return best.finish(problem);
     }
-    challenge_with_rivals(problem, &mut best, plan, observer);
+    challenge_with_rivals(problem, &mut best, plan, &init, observer);
     best.finish(problem)
 }
 
@@ -243,19 +244,31 @@ fn rerun_from_best(
 
 /// Runs SIE by `plan` from each rival pose of the best result so far that stays a rival once
 /// settled, offered as another start: a better rival wins, one nearly as good lowers the
-/// margin. The rivals are its half turns (`half_turns`) and its shifts by a period of
-/// structure its inliers repeat (`period_shifts`, screened as shifted: they need no settling
-/// to come near). Then a fit that scales the source (`scaled_source`) challenges the best.
+/// margin. The rivals are its half turns (`half_turns`), its shifts by a period of structure
+/// its inliers repeat (`period_shifts`, screened as shifted: they need no settling to come
+/// near) and, when its surfaces fix every direction and it moved the source by more than
+/// [`QUARTER_TURN_REACH`] of the target's spread from the caller's guess `init`, its quarter
+/// turns (`quarter_turns`; one that settles back within [`REACHED_SIGMAS`] of the best is the
+/// best's own basin, not run; a plane's result, doubted for the directions it leaves free,
+/// would only trade one free pose for a tied other). Then a fit that scales the source
+/// (`scaled_source`) challenges the best.
 pub(crate) fn challenge_with_rivals(
     problem: &mut CloudProblem<'_>,
     best: &mut BestOfStarts,
     plan: &RunPlan,
+    init: &Matrix4<f64>,
     mut observer: Option<&mut Observer<'_>>,
 ) {
     let Some((transform, sigma)) = best.best_pose() else {
         return;
     };
-    let turns = HalfTurns::of(problem, &best.evidence, &transform, sigma);
+    let travelled = moved_apart(problem.probe_points(), init, &transform);
+    let quarter = if best.best_is_constrained() && travelled > QUARTER_TURN_REACH * problem.target_spread() {
+        QuarterTurns::Tried
+    } else {
+        QuarterTurns::Skipped
+    };
+    let turns = TurnedRivals::of(problem, &best.evidence, &transform, sigma, quarter);
     let shifts: Vec<Matrix4<f64>> = period_shifts(best.best_surfaces())
         .into_iter()
         .map(|shift| Translation3::from(shift).to_homogeneous() * transform)
@@ -264,13 +277,21 @@ pub(crate) fn challenge_with_rivals(
     let rivals = turns
         .poses
         .iter()
-        .map(|pose| (*pose, StartKind::HalfTurn))
+        .copied()
         .chain(shifts.into_iter().map(|pose| (pose, StartKind::PeriodShift)));
     let settling = plan.settling(SETTLE_UPDATES);
+    let settling_on_evidence = plan.settling_on_evidence(SETTLE_UPDATES);
     // What the rivals are counted against, once one is run: the best's inliers among every row.
     let mut best_inliers = None;
     for (rival, kind) in rivals {
-        let settled = settle(problem, rival, &settling);
+        let settled = if kind == StartKind::QuarterTurn {
+            settle(problem, rival, &settling_on_evidence)
+        } else {
+            settle(problem, rival, &settling)
+        };
+        if kind == StartKind::QuarterTurn && best.best_apart_in_sigmas(problem, &settled) <= REACHED_SIGMAS {
+            continue;
+        }
         if !turns.rivals(problem, &best.evidence, &settled) {
             continue;
         }

@@ -76,7 +76,7 @@ pub(crate) fn register_from_feature_poses(
             return finish(problem, best, proposed);
         }
     }
-    challenge_with_rivals(problem, &mut best, plan, observer);
+    challenge_with_rivals(problem, &mut best, plan, &init, observer);
     finish(problem, best, proposed)
 }
 

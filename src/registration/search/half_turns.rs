@@ -6,11 +6,15 @@
 //! centroid. Each is screened on the evidence subset by its scale-free significance; one that
 //! comes near the result's is refined by SIE and offered as another start, so that a better
 //! rival wins and one nearly as good makes the result a close call (its margin). The same
-//! screens and count judge the result's period shifts (`period_shifts`).
+//! screens and count judge the result's quarter turns (`quarter_turns`, settled without the
+//! first screen) and period shifts (`period_shifts`).
 
 use nalgebra::{Matrix3, Matrix4, SymmetricEigen, Vector3};
 
+use super::quarter_turns::quarter_turns;
+use crate::geometry::centroid;
 use crate::registration::problem::{CloudProblem, Problem, Rows};
+use crate::registration::result::StartKind;
 use crate::registration::significance::inlier_radius_squared;
 use crate::registration::verdict::{Evidence, MIN_MARGIN};
 
@@ -33,43 +37,69 @@ const FEWER_INLIERS_DEVIATIONS: f64 = 3.0;
 /// about.
 const MIN_INLIERS: usize = 12;
 
-/// The half turns of a result worth settling, and the result's own scale-free significance on
-/// the evidence subset that they are judged against.
-pub(crate) struct HalfTurns {
-    pub(crate) poses: Vec<Matrix4<f64>>,
+/// Whether a result's quarter turns challenge it (`cloud_starts::challenge_with_rivals` says
+/// when).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum QuarterTurns {
+    /// Only the half turns.
+    Skipped,
+    /// The quarter turns too.
+    Tried,
+}
+
+/// The turns of a result worth settling, and the result's own scale-free significance on the
+/// evidence subset that they are judged against.
+pub(crate) struct TurnedRivals {
+    pub(crate) poses: Vec<(Matrix4<f64>, StartKind)>,
     own: f64,
 }
 
-impl HalfTurns {
+impl TurnedRivals {
     /// Those half turns of the pose `transform` (fitted σ `sigma`) that score at least
-    /// [`TURNED_SHARE`] of the pose's own significance on the evidence subset. Leaves the
-    /// problem's rows at the evidence subset's.
+    /// [`TURNED_SHARE`] of the pose's own significance on the evidence subset, and when
+    /// `quarter` says so its quarter turns (`quarter_turns`: off by decimetres as turned,
+    /// beyond what the screen sees, they are all settled). Leaves the problem's rows at the
+    /// evidence subset's.
     pub(crate) fn of(
         problem: &mut CloudProblem<'_>,
         evidence: &Evidence,
         transform: &Matrix4<f64>,
         sigma: f64,
+        quarter: QuarterTurns,
     ) -> Self {
         let cols = problem.cols();
         let inliers = problem.evidence_points_within(transform, inlier_radius_squared(sigma, cols));
         // The rows are the evidence subset's at `transform` still.
         let own = evidence.screen(problem.rows(), cols);
         if inliers.len() < MIN_INLIERS {
-            return HalfTurns {
+            return TurnedRivals {
                 poses: Vec::new(),
                 own,
             };
         }
-        let poses = half_turns_about_axes(&inliers)
+        let source_centroid = Vector3::from(centroid(problem.probe_points()));
+        let target_centroid = Vector3::from(problem.target_centroid());
+        let half = half_turns_about_axes(&inliers)
             .into_iter()
-            .map(|turn| turn * transform)
-            .filter(|rival| evidence.screen(problem.evaluate_evidence(rival), cols) >= TURNED_SHARE * own)
+            .map(|turn| (turn * transform, StartKind::HalfTurn));
+        let quarter = match quarter {
+            QuarterTurns::Skipped => Vec::new(),
+            QuarterTurns::Tried => quarter_turns(&inliers, transform, source_centroid, target_centroid),
+        }
+        .into_iter()
+        .map(|pose| (pose, StartKind::QuarterTurn));
+        let poses = half
+            .chain(quarter)
+            .filter(|(rival, kind)| {
+                *kind == StartKind::QuarterTurn
+                    || evidence.screen(problem.evaluate_evidence(rival), cols) >= TURNED_SHARE * own
+            })
             .collect();
-        HalfTurns { poses, own }
+        TurnedRivals { poses, own }
     }
 
     /// The rows within the inlier radius of σ = `sigma` among every row of the final
-    /// evaluation at `transform` (what [`HalfTurns::nearly_as_good`] compares with). Leaves
+    /// evaluation at `transform` (what [`TurnedRivals::nearly_as_good`] compares with). Leaves
     /// the problem's rows there.
     pub(crate) fn inliers_at(
         &self,
@@ -125,16 +155,7 @@ fn inliers_within(rows: &Rows, cols: usize, radius_squared: f64) -> usize {
 /// The rigid motions turning `points` half a turn about each of their principal axes through
 /// their centroid: x ↦ R·(x − c) + c with R = 2·e·eᵀ − I.
 fn half_turns_about_axes(points: &[[f64; 3]]) -> Vec<Matrix4<f64>> {
-    let count = points.len() as f64;
-    let centroid = points
-        .iter()
-        .fold(Vector3::zeros(), |sum, p| sum + Vector3::from(*p))
-        / count;
-    let scatter = points.iter().fold(Matrix3::zeros(), |sum, p| {
-        let d = Vector3::from(*p) - centroid;
-        sum + d * d.transpose()
-    });
-    let axes = SymmetricEigen::new(scatter).eigenvectors;
+    let (centroid, axes) = principal_axes(points);
     axes.column_iter()
         .map(|axis| {
             let rotation = 2.0 * axis * axis.transpose() - Matrix3::identity();
@@ -145,6 +166,20 @@ fn half_turns_about_axes(points: &[[f64; 3]]) -> Vec<Matrix4<f64>> {
             turn
         })
         .collect()
+}
+
+/// The centroid of `points` and their principal axes (the columns, unit length).
+pub(super) fn principal_axes(points: &[[f64; 3]]) -> (Vector3<f64>, Matrix3<f64>) {
+    let count = points.len() as f64;
+    let centroid = points
+        .iter()
+        .fold(Vector3::zeros(), |sum, p| sum + Vector3::from(*p))
+        / count;
+    let scatter = points.iter().fold(Matrix3::zeros(), |sum, p| {
+        let d = Vector3::from(*p) - centroid;
+        sum + d * d.transpose()
+    });
+    (centroid, SymmetricEigen::new(scatter).eigenvectors)
 }
 
 #[cfg(test)]

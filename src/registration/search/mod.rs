@@ -6,8 +6,9 @@
 //! * `hypotheses`: a threshold-free hypothesis search over minimal samples of given pairs.
 //! * `pair_starts`: correspondence registration from the guess, or from that search's best
 //!   poses.
-//! * `half_turns`, `period_shifts`: the rivals a near-symmetric or repeating scene allows a
-//!   result, run as further starts; `scaled_source`: a fit that also scales the source.
+//! * `half_turns`, `quarter_turns`, `period_shifts`: the rivals a near-symmetric, box-like or
+//!   repeating scene allows a result, run as further starts; `scaled_source`: a fit that also
+//!   scales the source.
 //! * `choice`: the choice between the starts' results, and how the others relate to it.
 //! * `feature_poses`, `global_starts`: with no guess to trust, poses from descriptor matches
 //!   (FPFH, mutual matching, the hypothesis search) and SIE from each.
@@ -20,6 +21,7 @@ mod half_turns;
 mod hypotheses;
 mod pair_starts;
 mod period_shifts;
+mod quarter_turns;
 mod scaled_source;
 
 pub(crate) use choice::BestOfStarts;
