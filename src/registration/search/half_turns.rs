@@ -9,10 +9,10 @@
 //! screens and count judge the result's quarter turns (`quarter_turns`, settled without the
 //! first screen) and period shifts (`period_shifts`).
 
-use nalgebra::{Matrix3, Matrix4, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::quarter_turns::quarter_turns;
-use crate::geometry::centroid;
+use crate::geometry::{centroid, principal_axes};
 use crate::registration::problem::{CloudProblem, Problem, Rows};
 use crate::registration::result::StartKind;
 use crate::registration::significance::inlier_radius_squared;
@@ -166,20 +166,6 @@ fn half_turns_about_axes(points: &[[f64; 3]]) -> Vec<Matrix4<f64>> {
             turn
         })
         .collect()
-}
-
-/// The centroid of `points` and their principal axes (the columns, unit length).
-pub(super) fn principal_axes(points: &[[f64; 3]]) -> (Vector3<f64>, Matrix3<f64>) {
-    let count = points.len() as f64;
-    let centroid = points
-        .iter()
-        .fold(Vector3::zeros(), |sum, p| sum + Vector3::from(*p))
-        / count;
-    let scatter = points.iter().fold(Matrix3::zeros(), |sum, p| {
-        let d = Vector3::from(*p) - centroid;
-        sum + d * d.transpose()
-    });
-    (centroid, SymmetricEigen::new(scatter).eigenvectors)
 }
 
 #[cfg(test)]

@@ -12,9 +12,8 @@
 
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
-use super::half_turns::principal_axes;
 use crate::Point;
-use crate::geometry::{from_parts, rotation_part};
+use crate::geometry::{from_parts, principal_axes, rotation_part};
 
 /// A result is challenged by its quarter turns only when it moved the source points (RMS) by
 /// more than this fraction of the target's spread (RMS distance from its centroid) from the
