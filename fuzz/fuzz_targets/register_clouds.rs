@@ -56,10 +56,10 @@ fuzz_target!(|data: &[u8]| {
                 assert!(summary.inlier_fraction.is_finite() && summary.rmse.is_finite());
                 // The verdict, its evidence and the search: valid codes, never NaN or inf.
                 assert!((1..=3).contains(&summary.verdict), "{summary:?}");
-                // ICP: the initial guess, a narrow β₀, a scale-free lead, a half turn or a period
-                // shift (no warm start here; no global stage, whose starts are 7).
+                // ICP: the initial guess, a narrow β₀, a scale-free lead, a half turn, a period
+                // shift or a quarter turn (no warm start here; no global stage, whose starts are 7).
                 assert!(
-                    matches!(summary.start, 0 | 1 | 2 | 5 | 6) && summary.starts_run >= 1,
+                    matches!(summary.start, 0 | 1 | 2 | 5 | 6 | 8) && summary.starts_run >= 1,
                     "{summary:?}"
                 );
                 assert!(

@@ -319,8 +319,9 @@ pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) 
     if expect.correspondences {
         assert!(s.start == 0 || (s.start == 3 && expect.searches), "{s:?}");
     } else {
-        // 7: a descriptor match of the global stage (SIE_STARTS_GLOBAL, a search too).
-        assert!(matches!(s.start, 0 | 1 | 2 | 4 | 5 | 6 | 7), "{s:?}");
+        // 7: a descriptor match of the global stage (SIE_STARTS_GLOBAL, a search too);
+        // 5, 6, 8: the rivals that challenge any ICP result (half turn, period shift, quarter turn).
+        assert!(matches!(s.start, 0 | 1 | 2 | 4 | 5 | 6 | 7 | 8), "{s:?}");
         assert!(s.start != 4 || expect.warm, "{s:?}");
         assert!(!matches!(s.start, 1 | 2 | 7) || expect.searches, "{s:?}");
     }
@@ -328,9 +329,10 @@ pub unsafe fn check_ok(ctx: *mut sie_context, out: &[f64; 16], expect: &Expect) 
         // Correspondences' hypothesis search, or the global stage's on descriptor matches.
         assert!(expect.searches, "{s:?}");
     }
-    // ICP challenges its result with up to three half turns and twelve period shifts (two
-    // periods along each of three axes, both ways), each run as another start.
-    let rivals = if expect.correspondences { 0 } else { 3 + 12 };
+    // ICP challenges its result with up to three half turns, twelve period shifts (two
+    // periods along each of three axes, both ways) and six quarter turns (±90° about three
+    // axes), each run as another start.
+    let rivals = if expect.correspondences { 0 } else { 3 + 12 + 6 };
     if s.start == 4 {
         assert!(s.starts_run <= 1 + rivals, "{s:?}");
     }
