@@ -580,11 +580,7 @@ impl PlaneSystem {
 
 /// The centroid of `points` and their principal axes (the columns, unit length).
 pub(crate) fn principal_axes(points: &[[f64; 3]]) -> (Vector3<f64>, Matrix3<f64>) {
-    let count = points.len() as f64;
-    let centroid = points
-        .iter()
-        .fold(Vector3::zeros(), |sum, p| sum + Vector3::from(*p))
-        / count;
+    let centroid = Vector3::from(centroid(points));
     let scatter = points.iter().fold(Matrix3::zeros(), |sum, p| {
         let d = Vector3::from(*p) - centroid;
         sum + d * d.transpose()

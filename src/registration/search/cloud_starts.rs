@@ -262,8 +262,10 @@ pub(crate) fn challenge_with_rivals(
     let Some((transform, sigma)) = best.best_pose() else {
         return;
     };
-    let travelled = moved_apart(problem.probe_points(), init, &transform);
-    let quarter = if best.best_is_constrained() && travelled > QUARTER_TURN_REACH * problem.target_spread() {
+    let quarter = if best.best_is_constrained()
+        && moved_apart(problem.probe_points(), init, &transform)
+            > QUARTER_TURN_REACH * problem.target_spread()
+    {
         QuarterTurns::Tried
     } else {
         QuarterTurns::Skipped

@@ -77,14 +77,16 @@ impl TurnedRivals {
                 own,
             };
         }
-        let source_centroid = Vector3::from(centroid(problem.probe_points()));
-        let target_centroid = Vector3::from(problem.target_centroid());
         let half = half_turns_about_axes(&inliers)
             .into_iter()
             .map(|turn| (turn * transform, StartKind::HalfTurn));
         let quarter = match quarter {
             QuarterTurns::Skipped => Vec::new(),
-            QuarterTurns::Tried => quarter_turns(&inliers, transform, source_centroid, target_centroid),
+            QuarterTurns::Tried => {
+                let source_centroid = Vector3::from(centroid(problem.probe_points()));
+                let target_centroid = Vector3::from(problem.target_centroid());
+                quarter_turns(&inliers, transform, source_centroid, target_centroid)
+            }
         }
         .into_iter()
         .map(|pose| (pose, StartKind::QuarterTurn));
