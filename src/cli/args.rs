@@ -169,7 +169,7 @@ pub struct RegisterArgs {
     pub init_pose: Option<Vec<f64>>,
     /// Cap on each start's IRLS updates (each one matches, weighs and solves once); the summary's
     /// iterations count the updates of every start run (the automatic starts, a single start's
-    /// rerun from its result, half turns, period shifts).
+    /// rerun from its result, half and quarter turns, period shifts).
     #[arg(long, value_name = "N", default_value_t = defaults().max_iterations, help_heading = "Start and stop")]
     pub max_iterations: u32,
     /// Converged when an update moves the translation by less than this (input units) …

@@ -61,7 +61,7 @@ pub(crate) fn run_warm(
     }
     if warm_model_held(warm, &result, moved) {
         // As a cold single start: judged against its near misses, challenged by its rivals
-        // (half turns, period shifts).
+        // (half and quarter turns, period shifts).
         let mut best = BestOfStarts::new(Evidence::around(problem, &result));
         if best.offer(problem, result, Some(pending), StartKind::WarmStart) {
             challenge_with_rivals(problem, &mut best, &plan.cold(), &init, observer);
