@@ -181,39 +181,6 @@ impl NormalScale {
         self.normals_within(points, index, queries, k, NOISY_NEIGHBOURHOOD_RATIO, workers)
     }
 
-    /// [`NormalScale::planar_normals_at`] with `k` neighbours and, from the `few` nearest of the
-    /// same neighbourhood, [`NormalScale::normals_at`] with `few` (one search for both).
-    pub fn planar_and_few_normals_at(
-        &self,
-        points: &[Point],
-        index: &NearestNeighbours,
-        queries: &[Point],
-        k: usize,
-        few: usize,
-        workers: &Workers,
-    ) -> Vec<[Point; 2]> {
-        let (cloud, index) = match &self.thinned {
-            None => (points, index),
-            Some((thinned, thin_index)) => (thinned.as_slice(), thin_index),
-        };
-        let mut normals = vec![[[0.0; 3]; 2]; queries.len()];
-        workers.for_each_chunk_of(NORMALS_CHUNK, &mut normals, |first, chunk| {
-            let mut neighbours = Vec::with_capacity(k.max(few) * MAX_LINE_WIDENING);
-            let mut nearest = Vec::with_capacity(few * MAX_LINE_WIDENING);
-            for (offset, pair) in chunk.iter_mut().enumerate() {
-                let p = &queries[first + offset];
-                index.nearest_k(p, k.max(few), &mut neighbours);
-                nearest.clear();
-                nearest.extend_from_slice(&neighbours[..few.min(neighbours.len())]);
-                pair[1] = normal_widening_lines(p, cloud, index, few, f64::INFINITY, &mut nearest);
-                neighbours.truncate(k);
-                pair[0] =
-                    normal_widening_lines(p, cloud, index, k, NOISY_NEIGHBOURHOOD_RATIO, &mut neighbours);
-            }
-        });
-        normals
-    }
-
     fn normals_within(
         &self,
         points: &[Point],

@@ -155,16 +155,27 @@ impl EstimatedNormals {
 
     /// Stores the normal of `t`; racing writers store the same bits.
     fn set(&self, t: usize, normal: Point) {
-        let stored = if is_finite(&normal) {
-            normal.map(|c| (c as f32).to_bits())
-        } else {
-            [0.0f32.to_bits(); 3]
-        };
+        let stored = stored_bits(&normal);
         let [x, y, z] = &self.values[t];
         y.store(stored[1], Ordering::Relaxed);
         z.store(stored[2], Ordering::Relaxed);
         x.store(stored[0], Ordering::Release);
     }
+}
+
+/// The bits [`EstimatedNormals`] keeps of a normal: f32 components, 0 0 0 for one that is not
+/// finite.
+fn stored_bits(normal: &Point) -> [u32; 3] {
+    if is_finite(normal) {
+        normal.map(|c| (c as f32).to_bits())
+    } else {
+        [0.0f32.to_bits(); 3]
+    }
+}
+
+/// A normal as [`EstimatedNormals`] gives it back once stored.
+fn as_stored(normal: &Point) -> Point {
+    stored_bits(normal).map(|c| f64::from(f32::from_bits(c)))
 }
 
 impl PreparedTarget {
@@ -530,9 +541,11 @@ impl PreparedTarget {
     /// normals or not), not kept. First from their `neighbours` nearest points: with more
     /// neighbours than `normal_neighbours`, a view of the surfaces in which the points' noise
     /// hardly tilts a normal, `[0, 0, 0]` where the neighbourhood is no plane (an edge, a
-    /// corner: `NormalScale::planar_normals_at`). Second, from the nearest of the same
-    /// neighbourhoods, the per-point normals point-to-plane uses: given, estimated, or
-    /// estimated now from the `normal_neighbours` nearest.
+    /// corner: `NormalScale::planar_normals_at`). Second, the per-point normals point-to-plane
+    /// uses: given, estimated, or estimated now from the `normal_neighbours` nearest by the same
+    /// search and to the same precision as stored ones, so that a shared target's stored
+    /// normals and a fresh target's give the same bits (a nearest-k search may keep other
+    /// points among ties at its k-th distance for another k).
     pub(crate) fn surface_and_point_normals(
         &self,
         targets: &[u32],
@@ -541,20 +554,36 @@ impl PreparedTarget {
     ) -> (Vec<Point>, Vec<Point>) {
         let scale = self.normal_scale(workers);
         let queries: Vec<Point> = targets.iter().map(|&t| self.points[t as usize]).collect();
-        let few = self.normal_neighbours.min(self.points.len());
-        let both =
-            scale.planar_and_few_normals_at(&self.points, &self.index, &queries, neighbours, few, workers);
+        let surface = scale.planar_normals_at(&self.points, &self.index, &queries, neighbours, workers);
         let known = self.normals();
         let stored = |t: u32| match &known {
             Normals::None => None,
             Normals::Given(normals) => Some(normals[t as usize]),
             Normals::Estimated(estimated) => estimated.get(t as usize),
         };
-        targets
+        let mut point: Vec<Option<Point>> = targets.iter().map(|&t| stored(t)).collect();
+        let missing: Vec<Point> = queries
             .iter()
-            .zip(both)
-            .map(|(&t, [surface, point])| (surface, stored(t).unwrap_or(point)))
-            .unzip()
+            .zip(&point)
+            .filter(|(_, normal)| normal.is_none())
+            .map(|(query, _)| *query)
+            .collect();
+        if !missing.is_empty() {
+            let few = self.normal_neighbours.min(self.points.len());
+            let mut estimated = scale
+                .normals_at(&self.points, &self.index, &missing, few, workers)
+                .into_iter();
+            for normal in point.iter_mut().filter(|normal| normal.is_none()) {
+                *normal = estimated.next().map(|n| as_stored(&n));
+            }
+        }
+        (
+            surface,
+            point
+                .into_iter()
+                .map(|normal| normal.unwrap_or([0.0; 3]))
+                .collect(),
+        )
     }
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not
