@@ -134,7 +134,7 @@ Eigen::Matrix4d align_with_normals(Context &context, const pcl::PointCloud<Point
  *
  * What PCL's settings mean here:
  * - One run from the guess, as PCL's ICP (and a second from its result when the first ended
- *   more than 10 fitted sigma from the guess): the context is set to sie::Starts::InitialGuess on
+ *   more than 10 fitted sigma from the guess, beyond a local correction): the context is set to sie::Starts::InitialGuess on
  *   construction, so the updates, the visualisation callback, the increments and the criteria
  *   below are those of one run (a second run's updates follow in order; it has its own cap, as
  *   every start does). context().set_starts(sie::Starts::Automatic) runs SIE from

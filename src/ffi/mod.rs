@@ -195,13 +195,15 @@ pub enum sie_starts {
     /// the initial guess and the best poses of a threshold-free hypothesis search. Clouds: the
     /// initial guess with the paper's beta0, with a narrow beta0, and after a scale-free (L1)
     /// lead; the search ends after the paper's start when its result is GOOD on its own
-    /// evidence and either moved little (10 fitted sigma) or the paper's run from it stays there
-    /// (`starts_run` 2, `agreeing_starts` 2). Applies to the SIE cost with the automatic initial beta; baseline costs and a
+    /// evidence and either moved little (10 fitted sigma), corrected the guess locally (within
+    /// half the target's spread, every direction fixed by its surfaces; `starts_run` 1) or the
+    /// paper's run from it stays there (`starts_run` 2, `agreeing_starts` 2). Applies to the SIE cost with the automatic initial beta; baseline costs and a
     /// fixed initial beta (`sie_context_set_regularizer`) run once from the initial guess.
     Automatic = 0,
     /// One run from the initial guess: the paper's method as published. A run that ends more
-    /// than 10 fitted sigma from the guess is run once more from its result and the more
-    /// significant of the two kept (a pose the method does not return to is no answer).
+    /// than 10 fitted sigma from the guess, and further than a local correction (half the
+    /// target's spread, every direction fixed by its surfaces), is run once more from its result
+    /// and the more significant of the two kept (a pose the method does not return to is no answer).
     InitialGuess = 1,
     /// Clouds from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen
     /// from the data (a voxel leaving each a few thousand keypoints, never finer than its point

@@ -23,13 +23,16 @@ pub enum Starts {
     /// search (`search::hypotheses`). ICP: the initial guess with the paper's β₀, with a narrow
     /// β₀, and after a scale-free lead (`search::cloud_starts`). SIE runs from each and the result with
     /// the most significant inlier cluster is returned; the search ends after the paper's start
-    /// when its result is GOOD on its own evidence and either moved little (10 fitted σ) or the
-    /// paper's run from it stays there. Each start may make up to `max_iterations` updates.
+    /// when its result is GOOD on its own evidence and either moved little (10 fitted σ),
+    /// corrected the guess locally (within half the target's spread, every direction fixed by
+    /// its surfaces) or the paper's run from it stays there. Each start may make up to
+    /// `max_iterations` updates.
     #[default]
     Automatic,
     /// Only the initial guess (the paper's method as published). A run that ends more than 10
-    /// fitted σ from the guess is run once more from its result and the more significant of
-    /// the two is kept: a pose the method does not return to is no answer (a flipped
+    /// fitted σ from the guess, and further than a local correction (half the target's spread,
+    /// every direction fixed by its surfaces), is run once more from its result and the more
+    /// significant of the two is kept: a pose the method does not return to is no answer (a flipped
     /// low-overlap scan that one run stopped at is left by the second for a better fit).
     InitialGuess,
     /// ICP from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen

@@ -170,8 +170,9 @@ class Context:
     def set_starts(self, starts: Union[Starts, str, int]) -> "Context":
         """Starts.AUTOMATIC (the default) runs SIE from several starts and keeps the most
         significant result; Starts.INITIAL_GUESS runs from the initial guess, and once more
-        from its result when it ended more than 10 fitted sigma away (the more significant of
-        the two is kept)."""
+        from its result when it ended more than 10 fitted sigma away beyond a local correction
+        (half the target's spread, every direction fixed; the more significant of the two is
+        kept)."""
         self._call(_lib.sie_context_set_starts, _enum_arg(Starts, starts, "starts"))
         return self
 

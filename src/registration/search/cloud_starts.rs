@@ -162,11 +162,15 @@ pub(crate) fn register_from_starts(
         if moved <= STAYED_SIGMAS || (moved <= REACHED_SIGMAS && best.best_is_good_alone()) {
             break;
         }
-        // Further, a result GOOD on its own evidence ends the search too when the paper's run
-        // from it stays there (as one start's must, `register_one_start`): the other starts
-        // are for a first start that is weak or does not hold. (An exact fit, σ = 0, has no
-        // widths to count: `moved` is NaN there and neither rule applies.)
+        // Further, a result GOOD on its own evidence ends the search too when it corrected
+        // the guess locally or the paper's run from it stays there (as one start's must,
+        // `register_one_start`): the other starts are for a first start that is weak or does
+        // not hold. (An exact fit, σ = 0, has no widths to count: `moved` is NaN there and
+        // neither rule applies.)
         if moved > REACHED_SIGMAS && best.best_is_good_alone() {
+            if corrected_locally(problem, &best, &init) {
+                break;
+            }
             match rerun_from_best(problem, &mut best, &start_plan, observer.as_deref_mut()) {
                 RerunEnd::Cancelled => return best.finish(problem),
                 RerunEnd::SamePose => break,
@@ -178,8 +182,9 @@ pub(crate) fn register_from_starts(
     best.finish(problem)
 }
 
-/// One start of SIE from `init` (the single-start setting), confirmed when it travelled: a
-/// result more than `REACHED_SIGMAS` from its guess has not shown that the paper's run, started
+/// One start of SIE from `init` (the single-start setting), confirmed when it travelled beyond
+/// a local correction: a result more than `REACHED_SIGMAS` from its guess, not within
+/// [`LOCAL_REACH`] or not fixed in every direction, has not shown that the paper's run, started
 /// at it, stays there (at a wrong pose with few inliers the wide first levels, which weigh the
 /// rest of the overlap, pull it away; at a right one they fit it again). The run from the result
 /// is offered as another start, and replaces the first when it ends at the same pose (the last
@@ -204,12 +209,31 @@ pub(crate) fn register_one_start(
     if !best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
         return best.finish(problem);
     }
-    if travelled && rerun_from_best(problem, &mut best, plan, observer.as_deref_mut()) == RerunEnd::Cancelled
+    if travelled
+        && !corrected_locally(problem, &best, &init)
+        && rerun_from_best(problem, &mut best, plan, observer.as_deref_mut()) == RerunEnd::Cancelled
     {
         return best.finish(problem);
     }
     challenge_with_rivals(problem, &mut best, plan, &init, observer);
     best.finish(problem)
+}
+
+/// A result is confirmed by the paper's run from it (`rerun_from_best`) unless it lies within
+/// this fraction of the target's spread (RMS distance from its centroid, as
+/// [`QUARTER_TURN_REACH`]) of the caller's guess and its surfaces fix every direction of its
+/// pose: a local correction of the guess. What the rerun catches is a result that slid along a
+/// direction its surfaces leave free, or one that travelled across the scene into another
+/// basin (about a spread or more); a sequence's frames and most real pairs from a near guess
+/// are neither, and pay for no second run.
+const LOCAL_REACH: f64 = 0.5;
+
+/// Whether the best result corrected the guess `init` locally (see [`LOCAL_REACH`]).
+fn corrected_locally(problem: &CloudProblem<'_>, best: &BestOfStarts, init: &Matrix4<f64>) -> bool {
+    best.best_is_constrained()
+        && best.best_pose().is_some_and(|(transform, _)| {
+            moved_apart(problem.probe_points(), init, &transform) < LOCAL_REACH * problem.target_spread()
+        })
 }
 
 /// Where a run from the best result's own pose ended.
@@ -332,7 +356,8 @@ pub(crate) fn challenge_with_rivals(
 /// widest one. Within `REACHED_SIGMAS`, a result GOOD on its own evidence (no other start to
 /// compare with) ends the search too: a sequence's constant-velocity guess, off by the
 /// acceleration, is the common case (one start, the paper's cost). Further, such a result ends
-/// it once the paper's run from the result stays there (two runs instead of three starts).
+/// it when it corrected the guess locally ([`LOCAL_REACH`]), or else once the paper's run from
+/// the result stays there (two runs instead of three starts).
 fn moved_in_widths(problem: &dyn Problem, init: &Matrix4<f64>, result: &RegistrationResult) -> f64 {
     let typical_scale = problem.rows().scale.median();
     moved_apart(problem.probe_points(), init, &result.transform) / (typical_scale * result.sigma_rms())

@@ -19,8 +19,8 @@ use crate::geometry::{from_parts, principal_axes, rotation_part};
 /// more than this fraction of the target's spread (RMS distance from its centroid) from the
 /// caller's guess. A quarter turn moves points by about √2 times their distance from its axis,
 /// so a result a quarter turn from the truth lies about a spread from any guess near the truth
-/// (the room's wrong results: 0.62–1.08 of it); a sequence's constant-velocity guess ends a
-/// percent or two away, and its frames pay nothing.
+/// (the room's wrong results: 0.62–1.08 of it); a sequence's constant-velocity guess mostly
+/// ends well within it, and those frames pay nothing.
 pub(crate) const QUARTER_TURN_REACH: f64 = 0.25;
 
 /// The rotation of `transform` turned a quarter turn either way about each principal axis of
