@@ -561,29 +561,23 @@ impl PreparedTarget {
             Normals::Given(normals) => Some(normals[t as usize]),
             Normals::Estimated(estimated) => estimated.get(t as usize),
         };
-        let mut point: Vec<Option<Point>> = targets.iter().map(|&t| stored(t)).collect();
-        let missing: Vec<Point> = queries
+        // Read once: another registration sharing the target may store normals meanwhile.
+        let point: Vec<Option<Point>> = targets.iter().map(|&t| stored(t)).collect();
+        let missing: Vec<u32> = targets
             .iter()
             .zip(&point)
             .filter(|(_, normal)| normal.is_none())
-            .map(|(query, _)| *query)
+            .map(|(&t, _)| t)
             .collect();
-        if !missing.is_empty() {
-            let few = self.normal_neighbours.min(self.points.len());
-            let mut estimated = scale
-                .normals_at(&self.points, &self.index, &missing, few, workers)
-                .into_iter();
-            for normal in point.iter_mut().filter(|normal| normal.is_none()) {
-                *normal = estimated.next().map(|n| as_stored(&n));
-            }
-        }
-        (
-            surface,
-            point
-                .into_iter()
-                .map(|normal| normal.unwrap_or([0.0; 3]))
-                .collect(),
-        )
+        let mut estimated = self
+            .normals_not_kept(&missing, workers)
+            .into_iter()
+            .map(|normal| as_stored(&normal));
+        let point = point
+            .into_iter()
+            .map(|normal| normal.or_else(|| estimated.next()).unwrap_or([0.0; 3]))
+            .collect();
+        (surface, point)
     }
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not
