@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 HEADER = ("library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,"
-          "rpe_r_rmse_deg,rpe_t_max_mm,note")
+          "rpe_r_rmse_deg,rpe_t_max_mm,ate_t_rmse_mm,note")
 K = 10                 # target normals from the k nearest neighbours (as sie's default)
 KEYFRAME_INTERVAL = 5  # as examples/bench_sequences.rs
 MAX_ITER = 100
@@ -33,6 +33,13 @@ def read_sequence(folder):
     frames = [np.fromfile(folder / f"{i:04d}.f32", dtype="<f4").reshape(-1, 3).astype(np.float64)
               for i in range(len(poses))]
     return frames, poses, voxel
+
+
+def absolute_trajectory_error(truth, estimate):
+    """RMS distance (mm) of each estimated position from the true one; every trajectory starts at
+    the true first pose, so no alignment is fitted (as examples/bench_sequences.rs)."""
+    errors = [np.linalg.norm(e[:3, 3] - t[:3, 3]) * 1e3 for t, e in zip(truth, estimate)]
+    return math.sqrt(np.mean(np.square(errors)))
 
 
 def relative_pose_errors(truth, estimate):
@@ -159,9 +166,10 @@ def main():
             method, estimates, note = odometry(frames, poses, voxel, mode, args.threads, args.max_dist)
             seconds = time.perf_counter() - started
             t_rmse, r_rmse, t_max = relative_pose_errors(poses, estimates)
+            ate = absolute_trajectory_error(poses, estimates)
             points = sum(len(f) for f in frames) // len(frames)
             print(f"{args.library},{method},{folder.name},{points},{len(frames)},{args.threads},{mode},"
-                  f"{seconds:.4f},{(len(frames) - 1) / seconds:.2f},{t_rmse:.3f},{r_rmse:.4f},{t_max:.3f},{note}",
+                  f"{seconds:.4f},{(len(frames) - 1) / seconds:.2f},{t_rmse:.3f},{r_rmse:.4f},{t_max:.3f},{ate:.3f},{note}",
                   flush=True)
             print(f"{args.library} {folder.name} {mode} threads={args.threads}: {seconds:.2f} s", file=sys.stderr)
 

@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The sequence (odometry) benchmark of docs/performance.md in one run: writes the synthetic room
-# trajectories, the simulated LiDAR street (FRAMES sweeps of 64 beams, ~120 000 points each; its
-# whole drive takes 300) and the real frame sequences, runs sie (examples/bench_sequences.rs), small_gicp
-# and KISS-ICP (bench/sequences.py, own venv) at 1 and 2 threads on the same frames, one after
-# the other, and prints the report.
+# trajectories, a depth camera on the same loop (noise growing as depth²), the simulated LiDAR
+# street (FRAMES sweeps of 64 beams, ~120 000 points each; its whole drive takes 300), still and
+# skewed by the motion, and the real frame sequences, runs sie (examples/bench_sequences.rs),
+# small_gicp and KISS-ICP (bench/sequences.py, own venv) at 1 and 2 threads on the same frames,
+# one after the other, and prints the report (frames/s over the fastest peer's, RPE and ATE).
 #
 #   bench/sequences.sh [OUT_DIR] [FRAMES] [N,N,...]   (default: build/bench-sequences, 100, 10000,50000)
 #
@@ -19,7 +20,7 @@ sizes=${3:-10000,50000}
 skip=${SIE_BENCH_SKIP:-}
 mkdir -p "$out"
 sequences=$out/sequences
-echo "== sequences ($frames frames of $sizes points, LiDAR street, Kinect, LiDAR pair) into $sequences" >&2
+echo "== sequences ($frames frames of $sizes points, depth camera, LiDAR streets, Kinect, LiDAR pair) into $sequences" >&2
 cargo run --release --quiet --example bench_sequences -- write "$sequences" "$frames" "$sizes"
 if [[ ",$skip," != *,sie,* ]]; then
   echo "== sie" >&2

@@ -1,27 +1,34 @@
 //! Odometry benchmark: sie over frame sequences, frame to previous frame and frame to a growing
 //! map, the targets prepared once (`PreparedTarget`). Prints frames per second and drift (the
-//! relative pose error of each frame's motion) as CSV rows, in the same format as
+//! relative pose error of each frame's motion, and the absolute trajectory error: the RMS
+//! distance of each estimated position from the true one, every trajectory starting at the
+//! true first pose, without alignment) as CSV rows, in the same format as
 //! bench/sequences.py prints for small_gicp and KISS-ICP on the same frames (bench/sequences.sh
 //! runs all of them and the report).
 //!
 //! ```text
 //! bench_sequences write DIR [FRAMES] [N,N,...]   synthetic room trajectories (default 100 frames
-//!                                                 of 10000 and 50000 points), FRAMES sweeps of
-//!                                                 the simulated 64-beam LiDAR driving through a
-//!                                                 street (`sie::synthetic::lidar`, about 100 000
-//!                                                 points each; the story takes 300) and, if
-//!                                                 SIE_DATA_DIR has them, the Kinect frames and
-//!                                                 the LiDAR pair, as DIR/<name>/
+//!                                                 of 10000 and 50000 points), a depth camera on
+//!                                                 the same loop (noise growing as depth²),
+//!                                                 FRAMES sweeps of the simulated 64-beam LiDAR
+//!                                                 driving through a street
+//!                                                 (`sie::synthetic::lidar`, about 100 000 points
+//!                                                 each; the story takes 300), still and with
+//!                                                 motion distortion, and, if SIE_DATA_DIR has
+//!                                                 them, the Kinect frames and the LiDAR pair, as
+//!                                                 DIR/<name>/
 //! bench_sequences run DIR [THREADS,...]          CSV on stdout (default 1,2 threads)
 //! bench_sequences quick                          a 12-frame 2000-point trajectory, written to a
 //!                                                 temporary folder and run once (CI)
 //! ```
 //!
 //! A sequence folder holds `NNNN.f32` (float32 x y z per point, little-endian), `poses.txt` (one
-//! row-major T_world_sensor per line, 16 numbers) and `voxel.txt` (the map's voxel size, m). The
-//! LiDAR street's folder also holds its sweeps as `pcd/NNNN.pcd` (binary PCD, missing returns at
-//! 0 0 0 as drivers write them) and `poses_kitti.txt` (KITTI format: the top 3 rows of each
-//! T_world_sensor, 12 numbers a line), for any other program to read the same frames.
+//! row-major T_world_sensor per line, 16 numbers), `voxel.txt` (the map's voxel size, m) and,
+//! for a depth camera's frames, `noise.txt` reading `quadratic-depth` (sie registers them with
+//! `NoiseModel::QuadraticDepth`; the peers have no such setting). The LiDAR streets' folders
+//! also hold their sweeps as `pcd/NNNN.pcd` (binary PCD, missing returns at 0 0 0 as drivers
+//! write them) and `poses_kitti.txt` (KITTI format: the top 3 rows of each T_world_sensor, 12
+//! numbers a line), for any other program to read the same frames.
 use std::collections::HashMap;
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -30,10 +37,10 @@ use std::time::Instant;
 use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
 use sie::synthetic::lidar::{Scanner, drive};
-use sie::synthetic::room_trajectory;
+use sie::synthetic::{DepthCamera, depth_camera_trajectory, room_trajectory};
 use sie::{
-    FrameStatus, Hooks, Odometry, Point, PrepareOptions, PreparedTarget, RegistrationConfig, WarmStart,
-    register_clouds_to,
+    FrameStatus, Hooks, NoiseModel, Odometry, Point, PrepareOptions, PreparedTarget, RegistrationConfig,
+    WarmStart, register_clouds_to,
 };
 
 /// The map gets a keyframe every this many frames; its prepared target serves the frames between.
@@ -43,14 +50,19 @@ const RANGE_NOISE: f64 = 0.01;
 /// Every this many pixels of a Kinect depth frame in each direction (as the scans table).
 const DEPTH_STRIDE: usize = 4;
 
-pub const HEADER: &str = "library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,rpe_r_rmse_deg,rpe_t_max_mm,note";
+pub const HEADER: &str = "library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,rpe_r_rmse_deg,rpe_t_max_mm,ate_t_rmse_mm,note";
 
 pub struct Sequence {
     name: String,
     frames: Vec<Vec<Point>>,
     poses: Vec<Matrix4<f64>>,
     voxel: f64,
+    /// How sie normalises the residuals (the peers have no such setting).
+    noise: NoiseModel,
 }
+
+/// A sequence's `noise.txt` for [`NoiseModel::QuadraticDepth`] (absent: constant noise).
+const QUADRATIC_DEPTH: &str = "quadratic-depth";
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -152,6 +164,7 @@ pub struct Row {
     pub rpe_t_rmse_mm: f64,
     pub rpe_r_rmse_deg: f64,
     pub rpe_t_max_mm: f64,
+    pub ate_t_rmse_mm: f64,
     pub note: String,
 }
 
@@ -160,7 +173,7 @@ impl Row {
         // Frames registered: all but the first.
         let registered = self.frames.saturating_sub(1) as f64;
         format!(
-            "sie,SIE point-to-plane{},{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{}",
+            "sie,SIE point-to-plane{},{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{:.3},{}",
             match self.start {
                 Start::Cold => "",
                 Start::Warm => " warm start",
@@ -176,6 +189,7 @@ impl Row {
             self.rpe_t_rmse_mm,
             self.rpe_r_rmse_deg,
             self.rpe_t_max_mm,
+            self.ate_t_rmse_mm,
             self.note
         )
     }
@@ -185,6 +199,7 @@ impl Row {
 pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Result<Row, String> {
     let mut config = RegistrationConfig {
         threads,
+        noise: sequence.noise,
         ..RegistrationConfig::default()
     };
     let options = PrepareOptions::from_config(&config);
@@ -239,6 +254,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
     }
     let seconds = started.elapsed().as_secs_f64();
     let (rpe_t_rmse_mm, rpe_r_rmse_deg, rpe_t_max_mm) = relative_pose_errors(&sequence.poses, &estimates);
+    let ate_t_rmse_mm = absolute_trajectory_error(&sequence.poses, &estimates);
     let registered = frames.len().saturating_sub(1).max(1) as u64;
     let mut note = format!(
         "{:.1} iterations/frame; {:.2} starts/frame",
@@ -263,6 +279,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
         rpe_t_rmse_mm,
         rpe_r_rmse_deg,
         rpe_t_max_mm,
+        ate_t_rmse_mm,
         note,
     })
 }
@@ -272,6 +289,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
 fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
     let config = RegistrationConfig {
         threads,
+        noise: sequence.noise,
         ..Odometry::sensor_config()
     };
     let mut odometry = Odometry::new(config).map_err(|e| e.to_string())?;
@@ -297,6 +315,7 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
     }
     let seconds = started.elapsed().as_secs_f64();
     let (rpe_t_rmse_mm, rpe_r_rmse_deg, rpe_t_max_mm) = relative_pose_errors(&sequence.poses, &estimates);
+    let ate_t_rmse_mm = absolute_trajectory_error(&sequence.poses, &estimates);
     let registered = frames.len().saturating_sub(1).max(1) as u64;
     let mut note = format!(
         "{:.1} iterations/frame; {:.2} starts/frame; {} frames set aside",
@@ -318,6 +337,7 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
         rpe_t_rmse_mm,
         rpe_r_rmse_deg,
         rpe_t_max_mm,
+        ate_t_rmse_mm,
         note,
     })
 }
@@ -338,6 +358,17 @@ fn relative_pose_errors(truth: &[Matrix4<f64>], estimate: &[Matrix4<f64>]) -> (f
         n += 1.0;
     }
     ((t2 / n).sqrt(), (r2 / n).sqrt(), t_max)
+}
+
+/// RMS distance (mm) of each estimated position from the true one. Every trajectory starts at
+/// the true first pose, so no alignment is fitted: the error is the drift accumulated so far.
+fn absolute_trajectory_error(truth: &[Matrix4<f64>], estimate: &[Matrix4<f64>]) -> f64 {
+    let squared: f64 = truth
+        .iter()
+        .zip(estimate)
+        .map(|(t, e)| ((translation_part(e) - translation_part(t)).norm() * 1e3).powi(2))
+        .sum();
+    (squared / truth.len().max(1) as f64).sqrt()
 }
 
 /// Keyframe points in the world frame, one per voxel (the first that fell into it).
@@ -374,8 +405,11 @@ fn write_sequences(dir: &Path, frames: usize, sizes: &[usize]) -> Result<(), Str
         eprintln!("room trajectory: {frames} frames of {n} points");
         write_synthetic(dir, frames, n)?;
     }
-    eprintln!("LiDAR street: {frames} sweeps of a 64-beam sensor");
-    write_lidar_street(dir, frames)?;
+    eprintln!("depth camera on the room's loop: {frames} frames");
+    write_depth_camera(dir, frames)?;
+    eprintln!("LiDAR street: {frames} sweeps of a 64-beam sensor, still and skewed by the motion");
+    write_lidar_street(dir, frames, Sweep::Still)?;
+    write_lidar_street(dir, frames, Sweep::Skewed)?;
     let data = std::env::var_os("SIE_DATA_DIR").map_or_else(
         || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
         PathBuf::from,
@@ -400,6 +434,7 @@ fn write_sequences(dir: &Path, frames: usize, sizes: &[usize]) -> Result<(), Str
                 frames: vec![target, source],
                 poses: vec![Matrix4::identity(), t_target_source],
                 voxel: 0.25,
+                noise: NoiseModel::Constant,
             },
         )?;
     }
@@ -415,20 +450,57 @@ fn write_synthetic(dir: &Path, frames: usize, points: usize) -> Result<(), Strin
             frames: trajectory.frames,
             poses: trajectory.poses,
             voxel: 0.05,
+            noise: NoiseModel::Constant,
         },
     )
+}
+
+/// Seed of the depth camera's noise.
+const DEPTH_CAMERA_SEED: u64 = 7;
+
+fn write_depth_camera(dir: &Path, frames: usize) -> Result<(), String> {
+    let trajectory = depth_camera_trajectory(frames, &DepthCamera::kinect_like(), DEPTH_CAMERA_SEED);
+    write_sequence(
+        dir,
+        &Sequence {
+            name: "rgbd-room".into(),
+            frames: trajectory.frames,
+            poses: trajectory.poses,
+            voxel: 0.02,
+            noise: NoiseModel::QuadraticDepth,
+        },
+    )
+}
+
+/// How the LiDAR sweeps are taken.
+#[derive(Clone, Copy, PartialEq)]
+enum Sweep {
+    /// Each from one pose (as de-skewed by a driver).
+    Still,
+    /// Each column from where the sensor is when it fires (motion distortion, not de-skewed).
+    Skewed,
 }
 
 /// Seed of the simulated street and its range noise.
 const STREET_SEED: u64 = 29;
 
-fn write_lidar_street(dir: &Path, frames: usize) -> Result<(), String> {
-    let drive = drive(&Scanner::sixty_four_beams(), frames, STREET_SEED, false);
+fn write_lidar_street(dir: &Path, frames: usize, sweep: Sweep) -> Result<(), String> {
+    let drive = drive(
+        &Scanner::sixty_four_beams(),
+        frames,
+        STREET_SEED,
+        sweep == Sweep::Skewed,
+    );
     let sequence = Sequence {
-        name: "lidar-street".into(),
+        name: match sweep {
+            Sweep::Still => "lidar-street",
+            Sweep::Skewed => "lidar-street-skewed",
+        }
+        .into(),
         frames: drive.frames,
         poses: drive.poses.iter().map(|p| p.to_homogeneous()).collect(),
         voxel: 0.25,
+        noise: NoiseModel::Constant,
     };
     write_sequence(dir, &sequence)?;
     let folder = dir.join(&sequence.name);
@@ -477,6 +549,9 @@ fn write_sequence(dir: &Path, sequence: &Sequence) -> Result<(), String> {
         fs::write(folder.join(name), text).map_err(|e| format!("{}/{name}: {e}", folder.display()))
     };
     write("poses.txt", poses)?;
+    if sequence.noise == NoiseModel::QuadraticDepth {
+        write("noise.txt", format!("{QUADRATIC_DEPTH}\n"))?;
+    }
     write("voxel.txt", format!("{}\n", sequence.voxel))
 }
 
@@ -511,6 +586,17 @@ fn read_sequence(folder: &Path) -> Result<Sequence, String> {
         .first()
         .copied()
         .ok_or("voxel.txt is empty")?;
+    let noise = match fs::read_to_string(folder.join("noise.txt")) {
+        Err(_) => NoiseModel::Constant,
+        Ok(text) if text.trim() == QUADRATIC_DEPTH => NoiseModel::QuadraticDepth,
+        Ok(text) => {
+            return Err(format!(
+                "{}/noise.txt: unknown noise model {:?}",
+                folder.display(),
+                text.trim()
+            ));
+        }
+    };
     let mut frames = Vec::with_capacity(poses.len());
     for i in 0..poses.len() {
         let path = folder.join(format!("{i:04}.f32"));
@@ -534,6 +620,7 @@ fn read_sequence(folder: &Path) -> Result<Sequence, String> {
         frames,
         poses,
         voxel,
+        noise,
     })
 }
 
@@ -584,6 +671,7 @@ pub fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
         frames,
         poses,
         voxel: 0.02,
+        noise: NoiseModel::Constant,
     })
 }
 

@@ -5,6 +5,7 @@
 //!   motion, and outliers that follow a second rigid motion.
 //! * [`room_scene`]: two partially overlapping noisy scans of a furnished room, with ground truth.
 //! * [`room_trajectory`]: a scanner moving through that room, frame by frame, with its poses.
+//! * [`depth_camera_trajectory`]: a depth camera on the same path, its noise growing as depth².
 //! * [`lidar`]: a spinning multi-beam LiDAR driving through a procedural street.
 use std::f64::consts::TAU;
 
@@ -224,20 +225,8 @@ pub fn room_trajectory(frames: usize, points: usize, range_noise: f64, seed: u64
         poses: Vec::with_capacity(frames),
     };
     for i in 0..frames {
-        let angle = TAU * i as f64 / frames.max(1) as f64;
-        let position = Vector3::new(
-            1.6 * angle.cos(),
-            1.1 * angle.sin(),
-            ROOM_MIN[2] + TRAJECTORY_HEIGHT + 0.1 * (3.0 * angle).sin(),
-        );
-        // Heading along the ellipse's tangent (−1.6 sin, 1.1 cos).
-        let heading = (1.1 * angle.cos()).atan2(-1.6 * angle.sin()) + 0.2 * (2.0 * angle).sin();
-        let orientation = UnitQuaternion::from_euler_angles(
-            0.05 * (4.0 * angle).cos(),
-            0.05 * (5.0 * angle).sin(),
-            heading,
-        );
-        let pose = Isometry3::from_parts(Translation3::from(position), orientation);
+        let pose = pose_on_loop(i, frames);
+        let (position, orientation) = (pose.translation.vector, pose.rotation);
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ splitmix(i as u64));
         let mut frame = Vec::with_capacity(points);
         while frame.len() < points {
@@ -250,6 +239,122 @@ pub fn room_trajectory(frames: usize, points: usize, range_noise: f64, seed: u64
             };
             let measured = direction * (range + noise.sample(&mut rng));
             frame.push([measured.x, measured.y, measured.z]);
+        }
+        result.frames.push(frame);
+        result.poses.push(pose.to_homogeneous());
+    }
+    result
+}
+
+/// Frame `i` of `frames` on [`room_trajectory`]'s loop: T_world_sensor, the sensor looking
+/// along its x axis (z up).
+fn pose_on_loop(i: usize, frames: usize) -> Isometry3<f64> {
+    let angle = TAU * i as f64 / frames.max(1) as f64;
+    let position = Vector3::new(
+        1.6 * angle.cos(),
+        1.1 * angle.sin(),
+        ROOM_MIN[2] + TRAJECTORY_HEIGHT + 0.1 * (3.0 * angle).sin(),
+    );
+    // Heading along the ellipse's tangent (−1.6 sin, 1.1 cos).
+    let heading = (1.1 * angle.cos()).atan2(-1.6 * angle.sin()) + 0.2 * (2.0 * angle).sin();
+    let orientation =
+        UnitQuaternion::from_euler_angles(0.05 * (4.0 * angle).cos(), 0.05 * (5.0 * angle).sin(), heading);
+    Isometry3::from_parts(Translation3::from(position), orientation)
+}
+
+/// A depth camera's picture: pixels, field of view, working range and noise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthCamera {
+    /// Pixels across.
+    pub width: usize,
+    /// Pixels down.
+    pub height: usize,
+    /// Horizontal field of view (radians); the vertical one follows from square pixels.
+    pub horizontal_fov: f64,
+    /// Depths outside this range (m) are invalid pixels, left out of the frame.
+    pub min_depth: f64,
+    /// See `min_depth`.
+    pub max_depth: f64,
+    /// Standard deviation of the measured depth at 1 m (m): at depth z it is this times z²
+    /// (structured light, the paper's §6 PrimeSense model).
+    pub depth_noise_at_one_metre: f64,
+}
+
+impl DepthCamera {
+    /// A Kinect-like camera at a quarter of its 640 × 480 resolution: 58.5° across, depths
+    /// 0.5–4.5 m, 2 mm of depth noise at 1 m (8 mm at 2 m, 32 mm at 4 m).
+    pub fn kinect_like() -> Self {
+        DepthCamera {
+            width: 160,
+            height: 120,
+            horizontal_fov: 58.5f64.to_radians(),
+            min_depth: 0.5,
+            max_depth: 4.5,
+            depth_noise_at_one_metre: 0.002,
+        }
+    }
+}
+
+/// How far [`depth_camera_trajectory`]'s camera turns left of its path (radians).
+const CAMERA_YAW_INWARDS: f64 = 1.2;
+/// How far it looks down (radians).
+const CAMERA_PITCH_DOWN: f64 = 0.6;
+
+/// `frames` depth images of the furnished room taken by `camera` carried around
+/// [`room_trajectory`]'s loop, looking into the room (left of the path, 69°) and down (34°). Each frame holds the valid pixels'
+/// points in the camera's own frame (x right, y down, z along the optical axis, so z is the
+/// depth as `NoiseModel::QuadraticDepth` reads it), in pixel order; its pose is T_world_camera.
+/// The depth of each pixel is the true one plus N(0, (`depth_noise_at_one_metre`·z²)²) (a pixel
+/// whose true depth lies outside the working range is invalid whatever its noise).
+///
+/// # Panics
+/// If the camera's noise is negative or not finite.
+pub fn depth_camera_trajectory(frames: usize, camera: &DepthCamera, seed: u64) -> Trajectory {
+    let unit = gaussian(1.0);
+    assert!(
+        camera.depth_noise_at_one_metre.is_finite() && camera.depth_noise_at_one_metre >= 0.0,
+        "depth noise must be finite and >= 0, got {}",
+        camera.depth_noise_at_one_metre
+    );
+    let room = Room::furnished();
+    // Camera axes (x right, y down, z forward) in the sensor frame (x forward, y left, z up),
+    // then turned towards the room's middle (left of the path) and down onto the floor and the
+    // furniture: looking along the path at this height, the view holds a single wall.
+    let sensor_from_camera = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), CAMERA_YAW_INWARDS)
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), CAMERA_PITCH_DOWN)
+        * UnitQuaternion::from_matrix(&nalgebra::Matrix3::new(
+            0.0, 0.0, 1.0, //
+            -1.0, 0.0, 0.0, //
+            0.0, -1.0, 0.0,
+        ));
+    let focal = (camera.width as f64 / 2.0) / (camera.horizontal_fov / 2.0).tan();
+    let (cx, cy) = (camera.width as f64 / 2.0, camera.height as f64 / 2.0);
+    let mut result = Trajectory {
+        frames: Vec::with_capacity(frames),
+        poses: Vec::with_capacity(frames),
+    };
+    for i in 0..frames {
+        let sensor = pose_on_loop(i, frames);
+        let pose = Isometry3::from_parts(sensor.translation, sensor.rotation * sensor_from_camera);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ splitmix(i as u64));
+        let mut frame = Vec::with_capacity(camera.width * camera.height);
+        for v in 0..camera.height {
+            for u in 0..camera.width {
+                // The ray through the pixel's centre, scaled to unit depth.
+                let ray = Vector3::new((u as f64 + 0.5 - cx) / focal, (v as f64 + 0.5 - cy) / focal, 1.0);
+                let noise = unit.sample(&mut rng);
+                let Some(range) =
+                    room.first_hit(&pose.translation.vector, &(pose.rotation * ray.normalize()))
+                else {
+                    continue;
+                };
+                let depth = range / ray.norm();
+                if !(camera.min_depth..=camera.max_depth).contains(&depth) {
+                    continue;
+                }
+                let measured = ray * (depth + camera.depth_noise_at_one_metre * depth * depth * noise);
+                frame.push([measured.x, measured.y, measured.z]);
+            }
         }
         result.frames.push(frame);
         result.poses.push(pose.to_homogeneous());
@@ -674,6 +779,67 @@ mod tests {
             let relative = pair[0].try_inverse().unwrap() * pair[1];
             let step = relative.fixed_view::<3, 1>(0, 3).norm();
             assert!(step > 0.2 && step < 0.6, "{step}");
+        }
+    }
+
+    /// The camera's points lie in its field of view and working range, on the room's surfaces
+    /// seen from the camera's pose; the same seed without noise gives the same pixels, and the
+    /// depth differences grow as depth²: their RMS over depth², binned by depth, is the noise
+    /// at 1 m in every bin.
+    #[test]
+    fn a_depth_camera_sees_the_room_with_noise_growing_as_depth_squared() {
+        let camera = DepthCamera::kinect_like();
+        let noisy = depth_camera_trajectory(6, &camera, 11);
+        let exact = depth_camera_trajectory(
+            6,
+            &DepthCamera {
+                depth_noise_at_one_metre: 0.0,
+                ..camera
+            },
+            11,
+        );
+        assert_eq!(noisy, depth_camera_trajectory(6, &camera, 11));
+        let half_fov = (camera.horizontal_fov / 2.0).tan() + 1e-9;
+        // Squared depth errors over z⁴, in bins of 1 m of true depth: [sum, count].
+        let mut bins = [[0.0f64; 2]; 5];
+        for ((frame, truth), pose) in noisy.frames.iter().zip(&exact.frames).zip(&exact.poses) {
+            assert_eq!(frame.len(), truth.len());
+            assert!(frame.len() > camera.width * camera.height / 2, "{}", frame.len());
+            for (p, q) in frame.iter().zip(truth) {
+                let z = q[2];
+                assert!((camera.min_depth..=camera.max_depth).contains(&z), "{z}");
+                assert!(q[0].abs() <= half_fov * z, "{q:?} outside the field of view");
+                let w = transform_point(pose, q);
+                assert!(
+                    (0..3).all(|d| w[d] > ROOM_MIN[d] - 1e-9 && w[d] < ROOM_MAX[d] + 1e-9),
+                    "{w:?}"
+                );
+                // Noise only along the pixel's ray.
+                let along = p[2] / z;
+                assert!((0..2).all(|d| (p[d] - along * q[d]).abs() < 1e-12), "{p:?} {q:?}");
+                let bin = &mut bins[z.floor() as usize];
+                bin[0] += ((p[2] - z) / (z * z)).powi(2);
+                bin[1] += 1.0;
+            }
+        }
+        let filled: Vec<f64> = bins
+            .iter()
+            .filter(|[_, n]| *n > 500.0)
+            .map(|[sum, n]| (sum / n).sqrt())
+            .collect();
+        assert!(filled.len() >= 3, "{bins:?}");
+        for at_one_metre in filled {
+            assert!(
+                (at_one_metre / camera.depth_noise_at_one_metre - 1.0).abs() < 0.1,
+                "{at_one_metre} against {}",
+                camera.depth_noise_at_one_metre
+            );
+        }
+        // The camera looks along the path: consecutive optical axes a few degrees apart.
+        for pair in noisy.poses.windows(2) {
+            let relative = pair[0].try_inverse().unwrap() * pair[1];
+            let axis_turn = relative[(2, 2)].clamp(-1.0, 1.0).acos().to_degrees();
+            assert!(axis_turn < 90.0, "{axis_turn}");
         }
     }
 
