@@ -301,9 +301,10 @@ const CAMERA_YAW_INWARDS: f64 = 1.2;
 const CAMERA_PITCH_DOWN: f64 = 0.6;
 
 /// `frames` depth images of the furnished room taken by `camera` carried around
-/// [`room_trajectory`]'s loop, looking into the room (left of the path, 69°) and down (34°). Each frame holds the valid pixels'
-/// points in the camera's own frame (x right, y down, z along the optical axis, so z is the
-/// depth as `NoiseModel::QuadraticDepth` reads it), in pixel order; its pose is T_world_camera.
+/// [`room_trajectory`]'s loop, looking into the room (69° left of the path) and down (34°).
+/// Each frame holds the valid pixels' points in the camera's own frame (x right, y down, z
+/// along the optical axis, so z is the depth as `NoiseModel::QuadraticDepth` reads it), in
+/// pixel order; its pose is T_world_camera.
 /// The depth of each pixel is the true one plus N(0, (`depth_noise_at_one_metre`·z²)²) (a pixel
 /// whose true depth lies outside the working range is invalid whatever its noise).
 ///
@@ -835,7 +836,7 @@ mod tests {
                 camera.depth_noise_at_one_metre
             );
         }
-        // The camera looks along the path: consecutive optical axes a few degrees apart.
+        // A loop of 6 frames: consecutive optical axes less than a quarter turn apart.
         for pair in noisy.poses.windows(2) {
             let relative = pair[0].try_inverse().unwrap() * pair[1];
             let axis_turn = relative[(2, 2)].clamp(-1.0, 1.0).acos().to_degrees();
