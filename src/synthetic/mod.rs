@@ -311,12 +311,7 @@ const CAMERA_PITCH_DOWN: f64 = 0.6;
 /// # Panics
 /// If the camera's noise is negative or not finite.
 pub fn depth_camera_trajectory(frames: usize, camera: &DepthCamera, seed: u64) -> Trajectory {
-    let unit = gaussian(1.0);
-    assert!(
-        camera.depth_noise_at_one_metre.is_finite() && camera.depth_noise_at_one_metre >= 0.0,
-        "depth noise must be finite and >= 0, got {}",
-        camera.depth_noise_at_one_metre
-    );
+    let noise_at_one_metre = gaussian(camera.depth_noise_at_one_metre);
     let room = Room::furnished();
     // Camera axes (x right, y down, z forward) in the sensor frame (x forward, y left, z up),
     // then turned towards the room's middle (left of the path) and down onto the floor and the
@@ -343,7 +338,7 @@ pub fn depth_camera_trajectory(frames: usize, camera: &DepthCamera, seed: u64) -
             for u in 0..camera.width {
                 // The ray through the pixel's centre, scaled to unit depth.
                 let ray = Vector3::new((u as f64 + 0.5 - cx) / focal, (v as f64 + 0.5 - cy) / focal, 1.0);
-                let noise = unit.sample(&mut rng);
+                let noise = noise_at_one_metre.sample(&mut rng);
                 let Some(range) =
                     room.first_hit(&pose.translation.vector, &(pose.rotation * ray.normalize()))
                 else {
@@ -353,7 +348,7 @@ pub fn depth_camera_trajectory(frames: usize, camera: &DepthCamera, seed: u64) -
                 if !(camera.min_depth..=camera.max_depth).contains(&depth) {
                     continue;
                 }
-                let measured = ray * (depth + camera.depth_noise_at_one_metre * depth * depth * noise);
+                let measured = ray * (depth + depth * depth * noise);
                 frame.push([measured.x, measured.y, measured.z]);
             }
         }
