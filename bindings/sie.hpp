@@ -135,6 +135,7 @@ enum class FrameStatus : std::uint32_t {
     Repeated = SIE_FRAME_STATUS_REPEATED,
     NotGood = SIE_FRAME_STATUS_NOT_GOOD,
     Jumped = SIE_FRAME_STATUS_JUMPED,
+    Loose = SIE_FRAME_STATUS_LOOSE,
 };
 
 enum class StopReason : std::uint32_t {
@@ -415,8 +416,8 @@ class Odometry {
     std::unique_ptr<sie_odometry, Free> odometry_;
 };
 
-/** One frame's outcome: its status, and T_world_sensor (the frame's pose for First and
- * Accepted, the last accepted pose otherwise). */
+/** One frame's outcome: its status, and T_world_sensor (the frame's pose for First, Accepted
+ * and Loose, the last accepted pose otherwise). */
 struct Frame {
     FrameStatus status;
     Transform T_world_sensor;
@@ -662,7 +663,7 @@ class Context {
     }
 
     /** Registers the next frame (points in its sensor's frame); the frame's registration is
-     * then this context's result (summary() etc.) for Accepted, NotGood and Jumped. A frame
+     * then this context's result (summary() etc.) for Accepted, Loose, NotGood and Jumped. A frame
      * refused as input throws Error and changes nothing; a cancelled one counts as NotGood. */
     Frame register_frame(Odometry &odometry, Points frame) {
         return frame_outcome(odometry, [&](double *pose, std::uint32_t *status) {

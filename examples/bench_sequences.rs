@@ -294,7 +294,7 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
     };
     let mut odometry = Odometry::new(config).map_err(|e| e.to_string())?;
     let frames = &sequence.frames;
-    let (mut iterations, mut starts, mut set_aside) = (0u64, 0u64, Vec::new());
+    let (mut iterations, mut starts, mut set_aside, mut loose) = (0u64, 0u64, Vec::new(), 0usize);
     let world = sequence.poses[0];
     let mut estimates = Vec::with_capacity(frames.len());
     let started = Instant::now();
@@ -304,8 +304,10 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
             iterations += u64::from(result.iterations);
             starts += u64::from(result.search.starts_run);
         }
-        if !matches!(outcome.status, FrameStatus::First | FrameStatus::Accepted) {
-            set_aside.push(format!("{i} {:?}", outcome.status));
+        match outcome.status {
+            FrameStatus::First | FrameStatus::Accepted => {}
+            FrameStatus::Loose => loose += 1,
+            status => set_aside.push(format!("{i} {status:?}")),
         }
         let pose = outcome
             .pose
@@ -318,7 +320,7 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
     let ate_t_rmse_mm = absolute_trajectory_error(&sequence.poses, &estimates);
     let registered = frames.len().saturating_sub(1).max(1) as u64;
     let mut note = format!(
-        "{:.1} iterations/frame; {:.2} starts/frame; {} frames set aside",
+        "{:.1} iterations/frame; {:.2} starts/frame; {loose} frames loose; {} frames set aside",
         iterations as f64 / registered as f64,
         starts as f64 / registered as f64,
         set_aside.len()

@@ -19,7 +19,10 @@ pub fn run(args: &OdometryArgs) -> Result<u8, CliError> {
         let (pose, status, used) = match read_cloud_with(path, NonFinite::Skip) {
             Ok(cloud) => {
                 let outcome = odometry.register_frame(&cloud.points, Hooks::default());
-                let used = matches!(outcome.status, FrameStatus::First | FrameStatus::Accepted);
+                let used = matches!(
+                    outcome.status,
+                    FrameStatus::First | FrameStatus::Accepted | FrameStatus::Loose
+                );
                 (frame_pose(&outcome, &odometry), describe(&outcome), used)
             }
             Err(message) => {
@@ -68,6 +71,7 @@ fn describe(outcome: &FrameOutcome) -> String {
     match outcome.status {
         FrameStatus::First => "first (the world frame)".into(),
         FrameStatus::Accepted => format!("accepted{}", verdict()),
+        FrameStatus::Loose => format!("accepted, one direction loosely fixed{}", verdict()),
         FrameStatus::Repeated => "the last accepted frame again, set aside".into(),
         FrameStatus::NotGood => format!("not good, set aside{}", verdict()),
         FrameStatus::Jumped => format!("jumped further than tracking explains, set aside{}", verdict()),

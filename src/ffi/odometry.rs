@@ -27,14 +27,20 @@ pub enum sie_frame_status {
     /// Registered, but the verdict is not GOOD: ignored (the context holds the result, whose
     /// summary says why); the pose was not written.
     NotGood = 3,
-    /// Registered GOOD, but, once a motion has been measured, further from the constant-velocity
-    /// guess than the frame's points are from its sensor (median range): no tracking explains
+    /// Registered GOOD (or LOOSE), but, once a motion has been measured, further from the
+    /// constant-velocity guess than the frame's points are from its sensor (median range): no tracking explains
     /// such a jump; ignored, the pose was not written (the context holds the result).
     Jumped = 4,
+    /// Registered DOUBTFUL for its conditioning alone (every other check of GOOD passed) and
+    /// within tracking's reach: the data fix some direction of the pose weakly (the summary
+    /// names it). Accepted as ACCEPTED is, its pose written: the next frames see the same view,
+    /// and setting them aside would register each further from its keyframe.
+    Loose = 5,
 }
 
 /// Frame-to-frame odometry: each frame registers onto the last accepted frame from a
-/// constant-velocity guess, and only a GOOD registration moves the trajectory. Create with
+/// constant-velocity guess, and only a GOOD registration (or a LOOSE one: GOOD but for its
+/// conditioning) moves the trajectory. Create with
 /// `sie_context_odometry_new`, feed frames with `sie_context_odometry_register_frame`, free with
 /// `sie_odometry_free`. One call at a time per odometry (it changes with every frame).
 pub struct sie_odometry {
@@ -130,6 +136,7 @@ unsafe fn register_frame_from<T: Coordinate>(
             FrameStatus::Repeated => sie_frame_status::Repeated,
             FrameStatus::NotGood => sie_frame_status::NotGood,
             FrameStatus::Jumped => sie_frame_status::Jumped,
+            FrameStatus::Loose => sie_frame_status::Loose,
             FrameStatus::InputRejected => unreachable!("a refused frame carries its error"),
         };
         if let Some(pose) = outcome.pose {
@@ -143,9 +150,10 @@ unsafe fn register_frame_from<T: Coordinate>(
 }
 
 /// Registers the next frame: `count` float x, y, z triples at `stride_bytes` (0 = packed) in
-/// the sensor's frame. On OK `*out_frame_status` receives a `sie_frame_status` and, for FIRST
-/// and ACCEPTED only, `out_T_world_sensor` (16 doubles, row-major) the frame's pose; the
-/// context holds the frame's registration (ACCEPTED, NOT_GOOD, JUMPED) for the usual queries.
+/// the sensor's frame. On OK `*out_frame_status` receives a `sie_frame_status` and, for FIRST,
+/// ACCEPTED and LOOSE only, `out_T_world_sensor` (16 doubles, row-major) the frame's pose; the
+/// context holds the frame's registration (ACCEPTED, LOOSE, NOT_GOOD, JUMPED) for the usual
+/// queries.
 ///
 /// A frame that cannot be used returns its error and changes nothing the caller holds; the
 /// odometry goes on from the last accepted frame as if it had not come, its guess one frame

@@ -4,6 +4,10 @@
 //! A bad frame (no usable point, input a registration refuses, the same frame sent again, a
 //! result not called GOOD) gets its own status and changes nothing: the next frame registers
 //! onto the last accepted one, from the last accepted pose, as if the bad frame had not come.
+//! The one DOUBTFUL result that is taken is a loose one (`FrameStatus::Loose`): every check of
+//! GOOD passed but the conditioning. Such a view stays loose in the next frames (a depth
+//! camera whose yaw rests on far, noisy walls), and setting them aside would register each
+//! next frame further from its keyframe until none registers.
 
 use std::hash::{DefaultHasher, Hash, Hasher};
 
@@ -16,8 +20,9 @@ use crate::point::Point;
 use crate::registration::clouds::register_clouds_to;
 use crate::registration::config::RegistrationConfig;
 use crate::registration::hooks::Hooks;
-use crate::registration::result::{RegistrationResult, Verdict};
+use crate::registration::result::{Quality, RegistrationResult, Verdict};
 use crate::registration::target::{PrepareOptions, PreparedTarget};
+use crate::registration::verdict::{MIN_CONDITIONING, verdict_with};
 
 /// What became of one frame given to [`Odometry::register_frame`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -31,13 +36,24 @@ pub enum FrameStatus {
     /// Refused as input (`FrameOutcome::error` says why: no point left after dropping
     /// invalid ones, a non-finite coordinate the config rejects, memory): ignored.
     InputRejected,
-    /// Registered, but the verdict is not GOOD (`FrameOutcome::result` has it): the pose is
-    /// not trusted and the frame is ignored (a jump, a frame from elsewhere, a degenerate view).
+    /// Registered, but the verdict is not GOOD (`FrameOutcome::result` has it) and the frame
+    /// is not `Loose`: the pose is not trusted and the frame is ignored (a jump, a frame from
+    /// elsewhere, a close call between two poses, a run that did not settle).
     NotGood,
-    /// Registered GOOD, but, once a motion has been measured, further from the constant-velocity
+    /// Registered GOOD (or `Loose`), but, once a motion has been measured, further from the constant-velocity
     /// guess than the frame's points are from its sensor (median range): tracking cannot explain
     /// such a jump (a frame from elsewhere, a clock or driver fault), so it is ignored.
     Jumped,
+    /// Registered DOUBTFUL for its conditioning alone (below [`MIN_CONDITIONING`]; every other
+    /// check of GOOD passed: an inlier peak, a settled run, σ within the target's spacing), no
+    /// start of its search ended elsewhere (`Quality::margin` infinite), a motion already
+    /// measured and the result within tracking's reach as `Jumped` measures it: the data fix
+    /// some direction of the pose weakly (`Quality::loose_direction` names it when the
+    /// surfaces do). Accepted as `Accepted` is (the pose is the best the frame gives; the next
+    /// frames see the same view), and said apart so the caller can weigh it. A loose result
+    /// with a rival anywhere, or before tracking has a motion to check it against, is
+    /// `NotGood`: at 30° and 0.9 m a frame such results ended 1.4–3.6 m off.
+    Loose,
 }
 
 /// One frame's status, its pose when it has one, and the registration behind it.
@@ -45,14 +61,15 @@ pub enum FrameStatus {
 pub struct FrameOutcome {
     /// What became of the frame.
     pub status: FrameStatus,
-    /// T_world_sensor of this frame: for `First` and `Accepted` only.
+    /// T_world_sensor of this frame: for `First`, `Accepted` and `Loose` only.
     pub pose: Option<Matrix4<f64>>,
     /// T_world_sensor the constant-velocity model predicts for this frame (the last accepted
     /// pose moved by the last accepted motion once per frame since): where the registration
     /// started, and the frame's best estimate when it was set aside; for a repeat, the last
     /// accepted pose. `None` for the first frame and frames refused before it.
     pub predicted_pose: Option<Matrix4<f64>>,
-    /// The frame's registration onto the last accepted frame (`Accepted` and `NotGood`).
+    /// The frame's registration onto the last accepted frame (`Accepted`, `Loose`, `NotGood`
+    /// and `Jumped`).
     pub result: Option<RegistrationResult>,
     /// Why an `InputRejected` frame was refused.
     pub error: Option<Error>,
@@ -190,10 +207,14 @@ impl Odometry {
                 return outcome(FrameStatus::InputRejected, None, predicted, None, Some(error));
             }
         };
-        if result.quality.verdict != Verdict::Good {
-            self.skip_frame();
-            return outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
-        }
+        let accepted_as = match result.quality.verdict {
+            Verdict::Good => FrameStatus::Accepted,
+            _ if self.velocity.is_some() && loose_only(&result) => FrameStatus::Loose,
+            _ => {
+                self.skip_frame();
+                return outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
+            }
+        };
         if self.velocity.is_some() && keyframe.displacement(&result.transform, &guess) > keyframe.median_range
         {
             self.skip_frame();
@@ -221,14 +242,23 @@ impl Odometry {
         }
         self.frames_since_accepted = 0;
         self.pose = orthonormalised(&(self.pose * result.transform));
-        outcome(
-            FrameStatus::Accepted,
-            Some(self.pose),
-            predicted,
-            Some(result),
-            None,
-        )
+        outcome(accepted_as, Some(self.pose), predicted, Some(result), None)
     }
+}
+
+/// Whether `result` would be GOOD but for its conditioning, with no start ended elsewhere (see
+/// [`FrameStatus::Loose`]).
+fn loose_only(result: &RegistrationResult) -> bool {
+    let quality = &result.quality;
+    quality.conditioning < MIN_CONDITIONING
+        && quality.margin == f64::INFINITY
+        && verdict_with(
+            result,
+            &Quality {
+                conditioning: MIN_CONDITIONING,
+                ..*quality
+            },
+        ) == Verdict::Good
 }
 
 fn outcome(

@@ -32,6 +32,7 @@ static_assert(static_cast<std::uint32_t>(sie::StartKind::Hypothesis) == SIE_STAR
 static_assert(static_cast<std::uint32_t>(sie::StartKind::WarmStart) == SIE_START_KIND_WARM_START, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::Starts::InitialGuess) == SIE_STARTS_INITIAL_GUESS, "the C values");
 static_assert(static_cast<std::uint32_t>(sie::FrameStatus::Jumped) == SIE_FRAME_STATUS_JUMPED, "the C values");
+static_assert(static_cast<std::uint32_t>(sie::FrameStatus::Loose) == SIE_FRAME_STATUS_LOOSE, "the C values");
 static_assert(!std::is_copy_constructible<sie::Odometry>::value, "an odometry owns its handle");
 
 namespace {

@@ -106,6 +106,7 @@ class FrameStatus(_NamedEnum):
     REPEATED = 2  # bit for bit the last accepted frame again: ignored
     NOT_GOOD = 3  # registered, verdict not GOOD: ignored
     JUMPED = 4  # GOOD, but (a motion known) further from the guess than the frame's median range
+    LOOSE = 5  # DOUBTFUL for its conditioning alone: accepted, one direction weakly fixed
 
 
 class Cloud(_NamedEnum):

@@ -16,9 +16,9 @@ from ._results import Summary
 
 
 class Frame(NamedTuple):
-    """One frame's outcome. pose: T_world_sensor (4 x 4) for FIRST and ACCEPTED, else None.
-    summary: the frame's registration onto the last accepted frame (ACCEPTED, NOT_GOOD, JUMPED),
-    else None."""
+    """One frame's outcome. pose: T_world_sensor (4 x 4) for FIRST, ACCEPTED and LOOSE, else
+    None. summary: the frame's registration onto the last accepted frame (ACCEPTED, LOOSE,
+    NOT_GOOD, JUMPED), else None."""
 
     status: FrameStatus
     pose: Optional[np.ndarray]
@@ -27,7 +27,8 @@ class Frame(NamedTuple):
 
 class Odometry:
     """Frame-to-frame odometry: each frame registers onto the last accepted frame from a
-    constant-velocity guess, and only a GOOD registration moves the trajectory. A frame the
+    constant-velocity guess, and only a GOOD registration (or a LOOSE one: GOOD but for its
+    conditioning) moves the trajectory. A frame the
     library refuses as input (too few points, NaN where not skipped) raises SieError and changes
     nothing; the odometry goes on as if it had not come.
 
@@ -59,9 +60,10 @@ class Odometry:
             self._context._run(context, result)
             frame_status = _enum_or_int(FrameStatus, status.value)
             registered = result == Status.OK and frame_status in (
-                FrameStatus.ACCEPTED, FrameStatus.NOT_GOOD, FrameStatus.JUMPED)
+                FrameStatus.ACCEPTED, FrameStatus.LOOSE, FrameStatus.NOT_GOOD, FrameStatus.JUMPED)
             summary = self._context._summary(context) if registered or result == Status.CANCELLED else None
-        has_pose = result == Status.OK and frame_status in (FrameStatus.FIRST, FrameStatus.ACCEPTED)
+        has_pose = result == Status.OK and frame_status in (
+            FrameStatus.FIRST, FrameStatus.ACCEPTED, FrameStatus.LOOSE)
         return Frame(frame_status, pose if has_pose else None, summary)
 
     @property
