@@ -9,6 +9,8 @@
 //! axis (the floor, the walls beside the row) slide onto themselves under any shift and do not
 //! vote. Each shift is then screened and refined like a half turn (`half_turns`).
 
+use std::collections::HashMap;
+
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
 use crate::registration::degeneracy::SurfaceRow;
@@ -84,11 +86,16 @@ fn periods_along(
         return Vec::new();
     }
     let bins = bins as usize;
-    // votes[k]: pairs k·bin apart along the axis (rounded); sums[k]: their distances.
+    // votes[k]: pairs k·bin apart along the axis (rounded); sums[k]: their distances. Each
+    // point's partners come from the cells around it across the axis, in index order, so the
+    // sums add up as over all pairs.
     let mut votes = vec![0usize; bins];
     let mut sums = vec![0.0f64; bins];
+    let cells = AcrossCells::new(points, axis, bin);
+    let mut partners = Vec::new();
     for i in 0..points.len() {
-        for j in i + 1..points.len() {
+        cells.partners_after(i, &mut partners);
+        for &j in &partners {
             if normals[i].dot(&normals[j]).abs() < SAME_NORMAL_COSINE {
                 continue;
             }
@@ -136,21 +143,87 @@ fn periods_along(
         .collect()
 }
 
+/// A grid over the plane across an axis whose cells are a little wider than `bin`: two points
+/// less than `bin` apart across the axis lie in the same or neighbouring cells.
+struct AcrossCells {
+    /// Each point's cell.
+    cell_of: Vec<(i64, i64)>,
+    /// Each cell's points, ascending.
+    members: HashMap<(i64, i64), Vec<usize>>,
+}
+
+impl AcrossCells {
+    fn new(points: &[Vector3<f64>], axis: &Vector3<f64>, bin: f64) -> Self {
+        // Two directions across the axis; the margin covers the rounding of the across
+        // distance the votes compute their own way.
+        let u = axis
+            .cross(&Vector3::x())
+            .try_normalize(1e-6)
+            .unwrap_or_else(|| axis.cross(&Vector3::y()).normalize());
+        let v = axis.cross(&u);
+        let width = bin * (1.0 + 1e-6);
+        let cell = |p: &Vector3<f64>| {
+            (
+                (p.dot(&u) / width).floor() as i64,
+                (p.dot(&v) / width).floor() as i64,
+            )
+        };
+        let cell_of: Vec<(i64, i64)> = points.iter().map(cell).collect();
+        let mut members: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        for (i, c) in cell_of.iter().enumerate() {
+            members.entry(*c).or_default().push(i);
+        }
+        AcrossCells { cell_of, members }
+    }
+
+    /// The points after `i` (by index, ascending) in its cell and the eight around it.
+    fn partners_after(&self, i: usize, out: &mut Vec<usize>) {
+        out.clear();
+        let (a, b) = self.cell_of[i];
+        for da in -1..=1 {
+            for db in -1..=1 {
+                if let Some(cell) = self.members.get(&(a + da, b + db)) {
+                    let after = cell.partition_point(|&j| j <= i);
+                    out.extend_from_slice(&cell[after..]);
+                }
+            }
+        }
+        out.sort_unstable();
+    }
+}
+
 /// The median distance from each point to its nearest other point (None below two points).
 fn neighbour_spacing(points: &[Vector3<f64>]) -> Option<f64> {
     if points.len() < 2 {
         return None;
     }
-    let mut nearest: Vec<f64> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            points
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, q)| (q - p).norm_squared())
-                .fold(f64::INFINITY, f64::min)
+    // Swept in x order: a point further along x than the nearest found so far is no nearer.
+    let mut by_x: Vec<usize> = (0..points.len()).collect();
+    by_x.sort_unstable_by(|&a, &b| points[a].x.total_cmp(&points[b].x));
+    let mut nearest: Vec<f64> = (0..by_x.len())
+        .map(|rank| {
+            let p = &points[by_x[rank]];
+            let mut best = f64::INFINITY;
+            let mut look = |other: usize| {
+                let q = &points[other];
+                let dx = q.x - p.x;
+                if dx * dx > best {
+                    return false;
+                }
+                best = best.min((q - p).norm_squared());
+                true
+            };
+            for &other in &by_x[rank + 1..] {
+                if !look(other) {
+                    break;
+                }
+            }
+            for &other in by_x[..rank].iter().rev() {
+                if !look(other) {
+                    break;
+                }
+            }
+            best
         })
         .collect();
     nearest.sort_unstable_by(f64::total_cmp);
