@@ -182,7 +182,7 @@ impl AcrossCells {
         let (a, b) = self.cell_of[i];
         for da in -1..=1 {
             for db in -1..=1 {
-                if let Some(cell) = self.members.get(&(a + da, b + db)) {
+                if let Some(cell) = self.members.get(&(a.saturating_add(da), b.saturating_add(db))) {
                     let after = cell.partition_point(|&j| j <= i);
                     out.extend_from_slice(&cell[after..]);
                 }
