@@ -485,14 +485,15 @@ enum sie_frame_status
     SIE_FRAME_STATUS_NOT_GOOD = 3,
     /**
      * Registered GOOD (or LOOSE), but, once a motion has been measured, further from the
-     * constant-velocity guess than the frame's points are from its sensor (median range): no tracking explains
-     * such a jump; ignored, the pose was not written (the context holds the result).
+     * constant-velocity guess than the frame's points are from its sensor (median range): no
+     * tracking explains such a jump; ignored, the pose was not written (the context holds the
+     * result).
      */
     SIE_FRAME_STATUS_JUMPED = 4,
     /**
-     * Registered DOUBTFUL for its conditioning alone (every other check of GOOD passed) and
-     * within tracking's reach: the data fix some direction of the pose weakly (the summary
-     * names it). Accepted as ACCEPTED is, its pose written: the next frames see the same view,
+     * Registered DOUBTFUL for its conditioning alone (every other check of GOOD passed, no
+     * start ended elsewhere), a motion already measured, and within tracking's reach: the
+     * data fix some direction of the pose weakly (the summary names it). Accepted as ACCEPTED is, its pose written: the next frames see the same view,
      * and setting them aside would register each further from its keyframe.
      */
     SIE_FRAME_STATUS_LOOSE = 5,
