@@ -49,12 +49,13 @@ pub enum Command {
 /// Exit codes of `sie odometry`.
 pub const ODOMETRY_EXIT_CODES_HELP: &str = "\
 Each frame registers onto the last accepted frame from a constant-velocity guess; only a GOOD
-registration moves the trajectory. A frame set aside (not GOOD, a jump no tracking explains, a
-repeat, an unreadable file or no usable point) still gets a line: the constant-velocity prediction.
+registration moves the trajectory, or a loose one (GOOD but for a weakly fixed direction, once a
+motion is measured). A frame set aside (not GOOD, a jump no tracking explains, a repeat, an
+unreadable file or no usable point) still gets a line: the constant-velocity prediction.
 Missing returns (NaN, 0 0 0) are dropped.
 
 Exit codes:
-  0    every frame was accepted
+  0    every frame was accepted or loose
   2    usage error, or an output that could not be written
   3    some frames were set aside (their lines hold the prediction; stderr says why)
   70   internal error (a bug; please report the message)";
