@@ -169,6 +169,11 @@ fn odometry_off_a_standstill_takes_no_frame_held_at_zero_motion() {
             for (i, sweep) in sweeps.iter().enumerate() {
                 let outcome = odometry.register_frame(sweep, Hooks::default());
                 let case = format!("{metric:?}, {starts:?}, sweep {i}: {:?}", outcome.status);
+                // Point-to-plane keeps up: the test would pass vacuously if nothing were taken.
+                assert!(
+                    metric != Metric::PointToPlane || outcome.pose.is_some(),
+                    "{case}: point-to-plane set a sweep aside"
+                );
                 let Some(pose) = outcome.pose else { continue };
                 if i > 0 {
                     let truth =

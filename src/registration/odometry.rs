@@ -46,7 +46,8 @@ pub enum FrameStatus {
     /// so it is ignored.
     Jumped,
     /// Registered DOUBTFUL for its conditioning alone (below [`MIN_CONDITIONING`]; every other
-    /// check of GOOD passed: an inlier peak, a settled run, σ within the target's spacing), no
+    /// check of GOOD passed: an inlier peak, a settled run, σ within the target's spacing; the
+    /// scaled-source fit is tried on GOOD results only, so not on these), no
     /// start of its search ended elsewhere (`Quality::margin` infinite), a motion already
     /// measured and the result within tracking's reach as `Jumped` measures it: the data fix
     /// some direction of the pose weakly (`Quality::loose_direction` names it when the
