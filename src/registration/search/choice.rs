@@ -19,7 +19,7 @@ use crate::registration::degeneracy::SurfaceRow;
 use crate::registration::irls::{FinalModel, PendingPerPoint};
 use crate::registration::problem::{Problem, moved_apart};
 use crate::registration::result::{
-    RegistrationResult, ScaledSource, StartKind, StopReason, TraceEntry, Verdict,
+    Quality, RegistrationResult, ScaledSource, StartKind, StopReason, TraceEntry, Verdict,
 };
 use crate::registration::verdict::{Evidence, MIN_CONDITIONING, MIN_MARGIN, verdict, verdict_with};
 
@@ -283,9 +283,22 @@ impl BestOfStarts {
     /// Whether the best result so far is GOOD on its own evidence, with no other start to
     /// compare it with.
     pub(crate) fn best_is_good_alone(&self) -> bool {
+        self.best_is_good_alone_with(|_| {})
+    }
+
+    /// As [`BestOfStarts::best_is_good_alone`], or would be but for a direction its surfaces
+    /// leave loose: right in every direction the data fix.
+    pub(crate) fn best_is_good_alone_but_for_conditioning(&self) -> bool {
+        self.best_is_good_alone_with(|quality| {
+            quality.conditioning = quality.conditioning.max(MIN_CONDITIONING);
+        })
+    }
+
+    fn best_is_good_alone_with(&self, overlook: impl Fn(&mut Quality)) -> bool {
         self.best.as_ref().is_some_and(|best| {
             let mut quality = best.result.quality;
             quality.margin = f64::INFINITY;
+            overlook(&mut quality);
             verdict_with(&best.result, &quality) == Verdict::Good
         })
     }

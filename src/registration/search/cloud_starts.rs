@@ -159,7 +159,12 @@ pub(crate) fn register_from_starts(
             return best.finish(problem);
         }
         let Some(moved) = moved else { continue };
-        if moved <= STAYED_SIGMAS || (moved <= REACHED_SIGMAS && best.best_is_good_alone()) {
+        // Near its guess and right in every direction its surfaces fix, a first start leaves
+        // the other starts nothing to find: they end along its loose direction, where they must
+        // be clearly more significant to replace it (`choice`), and the rivals still run.
+        if moved <= STAYED_SIGMAS
+            || (moved <= REACHED_SIGMAS && best.best_is_good_alone_but_for_conditioning())
+        {
             break;
         }
         // Further, a result GOOD on its own evidence ends the search too when it corrected
