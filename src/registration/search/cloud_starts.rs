@@ -160,8 +160,9 @@ pub(crate) fn register_from_starts(
         }
         let Some(moved) = moved else { continue };
         // Near its guess and right in every direction its surfaces fix, a first start leaves
-        // the other starts nothing to find: they end along its loose direction, where they must
-        // be clearly more significant to replace it (`choice`), and the rivals still run.
+        // the other starts (from the same guess) little to find: one ending along its loose
+        // direction must be clearly more significant to replace it (`choice`), and the rivals
+        // still run.
         if moved <= STAYED_SIGMAS
             || (moved <= REACHED_SIGMAS && best.best_is_good_alone_but_for_conditioning())
         {
