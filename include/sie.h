@@ -271,6 +271,8 @@ enum sie_starts
      * than 10 fitted sigma from the guess, and further than a local correction (half the
      * target's spread, every direction fixed by its surfaces), is run once more from its result
      * and the more significant of the two kept (a pose the method does not return to is no answer).
+     * When that far result is still not GOOD, a narrow beta (1/256 of the RMS residual) runs
+     * from the guess too: a small overlap near the guess, which the wide first levels left.
      */
     SIE_STARTS_INITIAL_GUESS = 1,
     /**

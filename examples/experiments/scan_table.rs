@@ -398,7 +398,7 @@ fn one_start_report(cases: &[PairCase], runs: &[ScanRun]) -> String {
     }
     let mut out = String::from(
         "SIE alone, `Starts::InitialGuess` (the paper's run from the guess, run once more from its result when it ended \
-         more than 10σ from the guess beyond a local correction, then only its half and quarter turns and period shifts are tried), on the pairs and starts \
+         more than 10σ from the guess beyond a local correction, then only its half and quarter turns and period shifts are tried, and a narrow β₀ from the guess when that far result is not GOOD), on the pairs and starts \
          of the table above.\n\n",
     );
     out.push_str(&table(

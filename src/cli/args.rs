@@ -144,7 +144,8 @@ pub struct RegisterArgs {
     /// narrow β₀ and after a scale-free (L1) lead, and keeps the most significant result;
     /// `initial-guess` runs the paper's method from the guess (faster; for good guesses, e.g.
     /// odometry), and once more from its result when it ended more than 10σ from the guess
-    /// beyond a local correction (half the target's spread, every direction fixed);
+    /// beyond a local correction (half the target's spread, every direction fixed), and if that
+    /// far result is not GOOD, with a narrow β₀ from the guess too (a small overlap);
     /// `global` needs no guess: FPFH descriptor matches propose poses and SIE runs from each
     /// (slower: the descriptors and up to 5 runs; clouds too small or flat are refused).
     #[arg(long, value_enum, default_value_t = StartsArg::Automatic, help_heading = "Method")]

@@ -204,6 +204,8 @@ pub enum sie_starts {
     /// than 10 fitted sigma from the guess, and further than a local correction (half the
     /// target's spread, every direction fixed by its surfaces), is run once more from its result
     /// and the more significant of the two kept (a pose the method does not return to is no answer).
+    /// When that far result is still not GOOD, a narrow beta (1/256 of the RMS residual) runs
+    /// from the guess too: a small overlap near the guess, which the wide first levels left.
     InitialGuess = 1,
     /// Clouds from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen
     /// from the data (a voxel leaving each a few thousand keypoints, never finer than its point

@@ -33,7 +33,9 @@ pub enum Starts {
     /// fitted σ from the guess, and further than a local correction (half the target's spread,
     /// every direction fixed by its surfaces), is run once more from its result and the more
     /// significant of the two is kept: a pose the method does not return to is no answer (a flipped
-    /// low-overlap scan that one run stopped at is left by the second for a better fit).
+    /// low-overlap scan that one run stopped at is left by the second for a better fit). When
+    /// that far result is still not GOOD, a narrow β₀ (1/256 of the RMS residual) runs from the
+    /// guess too: a small overlap near the guess, which the wide first levels left for the rest.
     InitialGuess,
     /// ICP from any pose, no guess needed: FPFH descriptors of both clouds at a scale chosen
     /// from the data (a voxel that leaves each a few thousand keypoints, never finer than its

@@ -172,7 +172,7 @@ class Context:
         significant result; Starts.INITIAL_GUESS runs from the initial guess, and once more
         from its result when it ended more than 10 fitted sigma away beyond a local correction
         (half the target's spread, every direction fixed; the more significant of the two is
-        kept)."""
+        kept), and when that far result is not GOOD with a narrow beta from the guess too."""
         self._call(_lib.sie_context_set_starts, _enum_arg(Starts, starts, "starts"))
         return self
 

@@ -71,7 +71,7 @@ class Starts(_NamedEnum):
     """Where SIE starts (Context.set_starts / starts=...)."""
 
     AUTOMATIC = 0  # several starts, the most significant result is kept (the default)
-    INITIAL_GUESS = 1  # the paper's method from the guess (again from its result if it went > 10 sigma, beyond a local correction)
+    INITIAL_GUESS = 1  # the paper's method from the guess (again from its result if it went > 10 sigma, beyond a local correction; a narrow beta too if that is not GOOD)
     GLOBAL = 2  # no guess needed: descriptor matches propose the starts (slower; small or flat clouds refused)
 
 

@@ -53,13 +53,16 @@ const CLOUD_STARTS: [CloudStart; 3] = [
     },
     CloudStart {
         lead: Lead::None,
-        beta_fraction: 1.0 / 256.0,
+        beta_fraction: NARROW_BETA_FRACTION,
     },
     CloudStart {
         lead: Lead::ScaleFree,
         beta_fraction: 1.0,
     },
 ];
+
+/// The narrow start's β₀ as a fraction of the RMS residual at the guess.
+const NARROW_BETA_FRACTION: f64 = 1.0 / 256.0;
 
 /// The scale-free lead stops when an update moves the source centroid by less than this
 /// fraction of the initial RMS residual and rotates it by less than LEAD_ROTATION_TOLERANCE:
@@ -94,16 +97,12 @@ pub(crate) fn register_from_starts(
     plan: &RunPlan,
     mut observer: Option<&mut Observer<'_>>,
 ) -> RegistrationResult {
-    let cols = problem.cols();
     let evidence = Evidence::of_clouds(problem, &init);
     // The RMS of every initial residual scales the later starts (the narrow β₀, the lead's
     // tolerance); it needs a pass over every source point, made only when a later start runs.
     let mut initial_rms = None;
-    let mut rms = |problem: &mut CloudProblem<'_>| {
-        *initial_rms.get_or_insert_with(|| {
-            (mean_squared_norm(problem.evaluate_all(&init), cols) / cols as f64).sqrt()
-        })
-    };
+    let mut rms =
+        |problem: &mut CloudProblem<'_>| *initial_rms.get_or_insert_with(|| residual_rms(problem, &init));
     let starts = if evidence.exact_start {
         &CLOUD_STARTS[..1]
     } else {
@@ -194,8 +193,9 @@ pub(crate) fn register_from_starts(
 /// at it, stays there (at a wrong pose with few inliers the wide first levels, which weigh the
 /// rest of the overlap, pull it away; at a right one they fit it again). The run from the result
 /// is offered as another start, and replaces the first when it ends at the same pose (the last
-/// update is then the result, as with one run). Then the rivals challenge the best. A β₀ the
-/// caller fixed runs once.
+/// update is then the result, as with one run). Then the rivals challenge the best; when that
+/// far result is still not GOOD on its own evidence, the search's narrow start runs from the
+/// guess too (and its rivals, when it wins). A β₀ the caller fixed runs once.
 pub(crate) fn register_one_start(
     problem: &mut CloudProblem<'_>,
     init: Matrix4<f64>,
@@ -215,14 +215,40 @@ pub(crate) fn register_one_start(
     if !best.offer(problem, result, Some(pending), StartKind::InitialGuess) {
         return best.finish(problem);
     }
-    if travelled
-        && !corrected_locally(problem, &best, &init)
-        && rerun_from_best(problem, &mut best, plan, observer.as_deref_mut()) == RerunEnd::Cancelled
-    {
+    let far = travelled && !corrected_locally(problem, &best, &init);
+    if far && rerun_from_best(problem, &mut best, plan, observer.as_deref_mut()) == RerunEnd::Cancelled {
         return best.finish(problem);
     }
-    challenge_with_rivals(problem, &mut best, plan, &init, observer);
+    challenge_with_rivals(problem, &mut best, plan, &init, observer.as_deref_mut());
+    // A guess whose wide first levels went far and found nothing GOOD there may still sit on a
+    // narrow peak: a small overlap, whose residuals a β₀ as wide as the RMS of all of them
+    // drowns in the rest. The search's narrow start looks there; its rivals run if it wins.
+    if far && !best.best_is_good_alone() {
+        let narrow = plan.starting_at_beta(NARROW_BETA_FRACTION * residual_rms(problem, &init));
+        let before = best.best_pose().map(|(transform, _)| transform);
+        best.park();
+        let (result, pending) = run_on_clouds(
+            problem,
+            init,
+            best.next_iteration,
+            &narrow,
+            observer.as_deref_mut(),
+        );
+        if !best.offer(problem, result, Some(pending), StartKind::NarrowBeta) {
+            return best.finish(problem);
+        }
+        if best.best_pose().map(|(transform, _)| transform) != before {
+            challenge_with_rivals(problem, &mut best, plan, &init, observer);
+        }
+    }
     best.finish(problem)
+}
+
+/// RMS of every residual at `init`, per residual component: the scale of the later starts (the
+/// narrow β₀, the lead's tolerance). A pass over every source point.
+fn residual_rms(problem: &mut CloudProblem<'_>, init: &Matrix4<f64>) -> f64 {
+    let cols = problem.cols();
+    (mean_squared_norm(problem.evaluate_all(init), cols) / cols as f64).sqrt()
 }
 
 /// A result is confirmed by the paper's run from it (`rerun_from_best`) unless it lies within
