@@ -205,7 +205,7 @@ fn bunny_cut_to_overlap(dir: &std::path::Path, overlap: f64) -> (Vec<sie::Point>
     (kept, target)
 }
 
-/// One start from the true pose at 15–30 % overlap: the paper's β₀, the RMS of every
+/// One start from the true pose at 16, 21 and 30 % overlap: the paper's β₀, the RMS of every
 /// residual, is as wide as the non-overlap, and its first levels fit that instead; the narrow
 /// start from the guess must then find the overlap's own peak, and be called GOOD there. The
 /// bound is the real-scan table's (2°, 2 % of the target's diagonal). The constant-velocity
