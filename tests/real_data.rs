@@ -208,8 +208,8 @@ fn bunny_cut_to_overlap(dir: &std::path::Path, overlap: f64) -> (Vec<sie::Point>
 /// One start from the true pose at 16, 21 and 30 % overlap: the paper's β₀, the RMS of every
 /// residual, is as wide as the non-overlap, and its first levels fit that instead; the narrow
 /// start from the guess must then find the overlap's own peak, and be called GOOD there. The
-/// bound is the real-scan table's (2°, 2 % of the target's diagonal). The constant-velocity
-/// guess of odometry is the same setting.
+/// bound is the real-scan table's (2°, 2 % of the target's diagonal). One start is the PCL
+/// adapter's default.
 #[test]
 fn one_start_from_the_truth_holds_at_low_overlap() {
     let Some(dir) = data_dir() else { return };
@@ -223,16 +223,7 @@ fn one_start_from_the_truth_holds_at_low_overlap() {
         let result =
             register_clouds(&source, &target, None, Some(&truth), &config, Hooks::default()).unwrap();
         let (rot, trans) = pose_error(&result.transform, &truth);
-        let diagonal = {
-            let (mut low, mut high) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-            for p in &target {
-                for a in 0..3 {
-                    low[a] = low[a].min(p[a]);
-                    high[a] = high[a].max(p[a]);
-                }
-            }
-            (0..3).map(|a| (high[a] - low[a]).powi(2)).sum::<f64>().sqrt()
-        };
+        let diagonal = sie::geometry::bounding_box_diagonal(&target);
         println!(
             "overlap {overlap}: {} / {} points, {rot:.3} deg, {:.2} mm, {:?}, start {:?}",
             source.len(),
