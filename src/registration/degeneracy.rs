@@ -19,9 +19,10 @@ use crate::parallel::Workers;
 use crate::point::Point;
 use crate::registration::target::PreparedTarget;
 
-/// Pairs whose normals are estimated, at most: a 6 × 6 matrix of well-spread rows is as clear
-/// from 2 000 as from every point.
-pub(crate) const SURFACE_PAIRS: usize = 2_048;
+/// Pairs whose normals are estimated, at most: a 6 × 6 matrix of well-spread rows is about as
+/// clear from a thousand as from every point (the real-scan tables' verdicts and poses are
+/// those of 2 048 draws; at 512 one search ends elsewhere: docs/performance.md).
+pub(crate) const SURFACE_PAIRS: usize = 1_024;
 /// Neighbours of a surface normal. A normal's tilt from noise σ over a neighbourhood of k
 /// points on a surface is about σ / (spacing · k) (radius ∝ √k, averaging over k): 5 times less
 /// than at the 10 neighbours of point-to-plane's normals, and still a neighbourhood, not an

@@ -6,8 +6,9 @@
 //! Estimated normals are filled lazily by whichever registration first matches a target point
 //! and kept for the later ones; two threads that race on the same point compute the same bits,
 //! so results never depend on who got there first.
-use std::sync::OnceLock;
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, OnceLock};
 use std::time::Instant;
 
 use super::config::{RegistrationConfig, require_normal_neighbours};
@@ -28,6 +29,11 @@ pub(crate) const NO_MATCH: u32 = u32::MAX;
 /// Normals `estimate_all_normals` estimates at a time (52 bytes each while it runs; the fixed
 /// part of `memory::target_normals_bytes`).
 const NORMALS_BLOCK: usize = 1 << 16;
+
+/// Surface normals a target keeps, at most (about 40 bytes each, 3 MB in all): many times one surface
+/// sample (`degeneracy::SURFACE_PAIRS`), so the runs of one registration and the next
+/// registrations onto the same target find theirs, and a small bound whatever the target's size.
+const SURFACE_NORMALS_KEPT: usize = 1 << 16;
 
 /// How a target is prepared.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -90,6 +96,16 @@ pub struct PreparedTarget {
     /// [`PreparedTarget::spacing`], once asked for.
     moments: OnceLock<(Point, f64)>,
     spacing: OnceLock<f64>,
+    /// Surface normals estimated so far (`surface_and_point_normals`): every run's final
+    /// evaluation draws its surface sample from much the same inliers.
+    surface_normals: Mutex<SurfaceNormals>,
+}
+
+/// Surface normals by curve-order target, for one neighbour count.
+#[derive(Default)]
+struct SurfaceNormals {
+    neighbours: usize,
+    by_target: HashMap<u32, Point>,
 }
 
 enum TargetNormals {
@@ -329,6 +345,7 @@ impl PreparedTarget {
             units,
             moments: OnceLock::new(),
             spacing: OnceLock::new(),
+            surface_normals: Mutex::default(),
         })
     }
 
@@ -552,9 +569,7 @@ impl PreparedTarget {
         neighbours: usize,
         workers: &Workers,
     ) -> (Vec<Point>, Vec<Point>) {
-        let scale = self.normal_scale(workers);
-        let queries: Vec<Point> = targets.iter().map(|&t| self.points[t as usize]).collect();
-        let surface = scale.planar_normals_at(&self.points, &self.index, &queries, neighbours, workers);
+        let surface = self.surface_normals(targets, neighbours, workers);
         let known = self.normals();
         let stored = |t: u32| match &known {
             Normals::None => None,
@@ -578,6 +593,53 @@ impl PreparedTarget {
             .map(|normal| normal.or_else(|| estimated.next()).unwrap_or([0.0; 3]))
             .collect();
         (surface, point)
+    }
+
+    /// `NormalScale::planar_normals_at` the curve-order targets `targets`, each estimated once:
+    /// the same bits as estimated anew (each normal depends on its point alone).
+    fn surface_normals(&self, targets: &[u32], neighbours: usize, workers: &Workers) -> Vec<Point> {
+        // The map only ever holds whole normals: a panic elsewhere leaves it usable.
+        let kept = || {
+            self.surface_normals
+                .lock()
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+        };
+        let known: Vec<Option<Point>> = {
+            let kept = kept();
+            let same_count = kept.neighbours == neighbours;
+            targets
+                .iter()
+                .map(|t| kept.by_target.get(t).copied().filter(|_| same_count))
+                .collect()
+        };
+        let mut missing: Vec<u32> = targets
+            .iter()
+            .zip(&known)
+            .filter(|(_, normal)| normal.is_none())
+            .map(|(&t, _)| t)
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        let queries: Vec<Point> = missing.iter().map(|&t| self.points[t as usize]).collect();
+        let found = self.normal_scale(workers).planar_normals_at(
+            &self.points,
+            &self.index,
+            &queries,
+            neighbours,
+            workers,
+        );
+        let surface = targets
+            .iter()
+            .zip(known)
+            .map(|(t, normal)| normal.unwrap_or_else(|| found[missing.binary_search(t).unwrap_or(0)]))
+            .collect();
+        let mut kept = kept();
+        if kept.neighbours != neighbours || kept.by_target.len() + missing.len() > SURFACE_NORMALS_KEPT {
+            kept.by_target.clear();
+            kept.neighbours = neighbours;
+        }
+        kept.by_target.extend(missing.into_iter().zip(found));
+        surface
     }
 
     /// The normal of curve-order target `t`: given, or estimated (`[0, 0, 0]`: none, or not
@@ -729,6 +791,42 @@ mod tests {
                 blocks.normal(t).map(f64::to_bits),
                 batch.normal(t).map(f64::to_bits),
                 "target {t}"
+            );
+        }
+    }
+
+    /// Surface normals served from the target's map: the same bits as estimated anew on a
+    /// fresh target, for samples with repeats, samples that overlap earlier ones, and a
+    /// change of neighbour count (which must not serve the other count's normals).
+    #[test]
+    fn kept_surface_normals_equal_fresh_ones() {
+        let scene = crate::synthetic::room_scene(3_000, 0.01, 6);
+        let shared = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+        let workers = Workers::new(2).unwrap();
+        let n = shared.indexed_len() as u32;
+        let fresh = |targets: &[u32], neighbours: usize| {
+            let target = PreparedTarget::new(&scene.target, None, &PrepareOptions::default()).unwrap();
+            let queries: Vec<Point> = targets.iter().map(|&t| target.points[t as usize]).collect();
+            target.normal_scale(&workers).planar_normals_at(
+                &target.points,
+                &target.index,
+                &queries,
+                neighbours,
+                &workers,
+            )
+        };
+        let bits =
+            |normals: Vec<Point>| -> Vec<[u64; 3]> { normals.iter().map(|n| n.map(f64::to_bits)).collect() };
+        let first: Vec<u32> = (0..n).step_by(7).chain((0..n).step_by(14)).collect();
+        let overlapping: Vec<u32> = (0..n).step_by(5).collect();
+        for (targets, neighbours) in [(&first, 50), (&overlapping, 50), (&overlapping, 30), (&first, 50)] {
+            let kept = shared.surface_normals(targets, neighbours, &workers);
+            let planar = kept.iter().filter(|n| **n != [0.0; 3]).count();
+            assert!(planar > targets.len() / 4, "{planar} of {}", targets.len());
+            assert_eq!(
+                bits(kept),
+                bits(fresh(targets, neighbours)),
+                "{neighbours} neighbours"
             );
         }
     }
