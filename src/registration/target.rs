@@ -30,9 +30,10 @@ pub(crate) const NO_MATCH: u32 = u32::MAX;
 /// part of `memory::target_normals_bytes`).
 const NORMALS_BLOCK: usize = 1 << 16;
 
-/// Surface normals a target keeps, at most (about 40 bytes each, 3 MB in all): many times one surface
-/// sample (`degeneracy::SURFACE_PAIRS`), so the runs of one registration and the next
-/// registrations onto the same target find theirs, and a small bound whatever the target's size.
+/// Surface normals a target keeps, at most (33 bytes a slot in a table of up to 2^17 slots:
+/// about 4.3 MB): many times one surface sample (`degeneracy::SURFACE_PAIRS`), so the runs of
+/// one registration and the next registrations onto the same target find theirs, and a small
+/// bound whatever the target's size.
 const SURFACE_NORMALS_KEPT: usize = 1 << 16;
 
 /// How a target is prepared.
