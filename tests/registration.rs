@@ -411,6 +411,45 @@ fn room_scenes_converge_at_benchmark_sizes() {
     }
 }
 
+/// A large sample fits SIE's final model on a medium subset (about 20 000 source points) and
+/// converges on every point: once the annealing ends, the updates before the model freezes
+/// match the subset, the last ones the whole sample, and the pose is as close to the truth as
+/// every point gives (every point throughout: 0.0139°, 0.71 mm).
+#[test]
+fn large_clouds_fit_the_final_model_on_a_subset_and_converge_on_every_point() {
+    let scene = room_scene(60_000, 0.01, 3);
+    let config = RegistrationConfig {
+        starts: Starts::InitialGuess,
+        record_trace: true,
+        ..RegistrationConfig::default()
+    };
+    let result = icp(&scene.source, &scene.target, &config);
+    let (rot, trans) = pose_error(&result.transform, &scene.t_target_source);
+    assert_eq!(result.stop_reason, StopReason::Converged);
+    assert!(
+        rot.to_degrees() < 0.02 && trans < 0.001,
+        "{} deg {trans} m",
+        rot.to_degrees()
+    );
+    let final_round: Vec<usize> = result
+        .trace
+        .iter()
+        .filter(|t| !t.annealing)
+        .map(|t| t.correspondences)
+        .collect();
+    let on_subset = |rows: usize| (10_000..=25_000).contains(&rows);
+    let on_sample = |rows: usize| rows >= 40_000;
+    let first_on_sample = final_round.iter().position(|&rows| on_sample(rows));
+    assert!(
+        final_round.first().is_some_and(|&rows| on_subset(rows)),
+        "{final_round:?}"
+    );
+    assert!(
+        first_on_sample.is_some_and(|first| final_round[first..].iter().all(|&rows| on_sample(rows))),
+        "{final_round:?}"
+    );
+}
+
 #[test]
 fn icp_results_do_not_depend_on_the_thread_count_and_sampling_still_converges() {
     let scene = room_scene(10_000, 0.01, 4);

@@ -206,6 +206,9 @@ pub struct Schedule {
     /// True until the first level ends.
     first_level: bool,
     started: bool,
+    /// A final-round update on a subset of the points has settled: the next update fits the
+    /// model on every point, and it freezes (σ from every point, without a second settling).
+    subset_settled: bool,
     /// Σ P(I|R_i) of the last update: the effective number of inlier rows.
     inlier_mass: f64,
     /// P(I) of the last `probabilities` (see [`SieEstimator::row_probability`]).
@@ -223,6 +226,7 @@ impl Schedule {
             level_motion: 0.0,
             first_level: true,
             started: false,
+            subset_settled: false,
             inlier_mass: 0.0,
             prior: 0.5,
         }
@@ -241,6 +245,12 @@ impl Schedule {
     /// True while β is being annealed.
     pub fn annealing(&self) -> bool {
         self.phase == Phase::Annealing
+    }
+
+    /// Whether the final round's updates may still match a subset of the points: the model is
+    /// fitted (after the annealing) and no subset's update has settled yet.
+    pub fn final_fit_on_subset(&self) -> bool {
+        self.phase == Phase::Final && !self.subset_settled
     }
 
     /// Whether the final round's model is held fixed (the updates then iterate one map of the
@@ -336,12 +346,23 @@ impl Schedule {
         sigma * (RIGID_DOF / self.inlier_mass.max(1.0)).sqrt()
     }
 
+    /// The final round settled: on a subset of the points its model is fitted once more, on
+    /// every point; on every point it freezes.
+    fn settle_final(&mut self, on_subset: bool) {
+        match self.phase {
+            Phase::Final if on_subset => self.subset_settled = true,
+            Phase::Final => self.phase = Phase::Frozen,
+            Phase::Annealing | Phase::Frozen => {}
+        }
+    }
+
     /// Advances the schedule after an update. `below_tolerance`: the update was below the
     /// caller's tolerances; `displacement`: how far it moved the rows (normalised RMS). A level
     /// ends when the update is small against the model width σ+β (or after
     /// MAX_LEVEL_UPDATES); β then shrinks (§4.3), and once β ≪ σ the final round begins (for a
     /// warm start also after a first level that moved the rows by less than WARM_HELD_WIDTHS).
-    pub fn after_update(&mut self, below_tolerance: bool, displacement: f64) -> Convergence {
+    /// `on_subset`: the update matched a subset of the points (see [`Self::final_fit_on_subset`]).
+    pub fn after_update(&mut self, below_tolerance: bool, displacement: f64, on_subset: bool) -> Convergence {
         let settled = below_tolerance || displacement <= LEVEL_TOLERANCE * self.width();
         match self.phase {
             Phase::Annealing => {
@@ -375,11 +396,15 @@ impl Schedule {
             _ if self.precision_stop == PrecisionStop::Allowed
                 && displacement <= PRECISION_FRACTION * self.precision() =>
             {
+                // Resolved is settled too (a loop that goes on after a subset's update fits
+                // the model on every point next).
+                self.settle_final(on_subset);
                 Convergence::Resolved
             }
             Phase::Final => {
-                if settled {
-                    self.phase = Phase::Frozen;
+                // After a subset's update settled, one fit on every point sets the model.
+                if settled || (self.subset_settled && !on_subset) {
+                    self.settle_final(on_subset);
                 }
                 Convergence::Tolerance
             }
@@ -400,6 +425,34 @@ pub(crate) fn row_norm(values: &[f64], cols: usize, row: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The final round on a subset of the points: its updates stay on the subset until one
+    /// settles; the next update, on every point, fits the model once more and freezes it,
+    /// settled or not (σ from every point, no second settling).
+    #[test]
+    fn a_settled_subset_update_leaves_one_fit_on_every_point_before_the_freeze() {
+        let residuals: Vec<f64> = (0..2000).map(|k| 0.01 * ((k as f64) * 0.77).sin()).collect();
+        let mut weights = vec![0.0; residuals.len()];
+        let beta = BetaSchedule {
+            start: BetaStart::Fixed(1e-6),
+            shrink: 0.5,
+            stop_ratio: 1.0,
+        };
+        let mut schedule = Schedule::new(SieOptions::default(), beta, PrecisionStop::Never);
+        schedule.weigh(&residuals, 1, |_| 1.0, &mut weights);
+        // β is already ≪ σ: the first settled level begins the final round.
+        assert_eq!(schedule.after_update(true, 0.0, false), Convergence::NotYet);
+        assert!(schedule.final_fit_on_subset());
+        assert_eq!(schedule.after_update(false, 1.0, true), Convergence::Tolerance);
+        assert!(
+            schedule.final_fit_on_subset(),
+            "an unsettled subset update keeps the subset"
+        );
+        assert_eq!(schedule.after_update(true, 0.0, true), Convergence::Tolerance);
+        assert!(!schedule.final_fit_on_subset() && !schedule.model_frozen());
+        assert_eq!(schedule.after_update(false, 1.0, false), Convergence::Tolerance);
+        assert!(schedule.model_frozen());
+    }
 
     /// Any finite σ > 0 is a warm start, at either end of f64's range; the RMS over several
     /// histograms neither overflows nor underflows. Before: σ = 1e300 was refused as "got inf".

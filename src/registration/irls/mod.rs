@@ -78,6 +78,11 @@ const SLOPE_STEP: f64 = 0.25;
 /// travelling (see [`iterate`]).
 const TRAVEL_WIDTHS: f64 = 1.0;
 
+/// Updates on the medium subset while SIE fits its final model, at most: a fit that has not
+/// settled by then (very uneven per-point noise leaves the subset's optimum wandering within
+/// its own spread) goes on on every point, as without the subset.
+const MEDIUM_SUBSET_UPDATES: u32 = 16;
+
 /// Rounding of coordinates of this magnitude, as a normalised residual (divided by the median
 /// row scale F): a few hundred ulps, far below any measured noise.
 pub(crate) fn resolution(magnitude: f64, row_scales: &RowScales) -> f64 {
@@ -210,6 +215,11 @@ fn iterate(
     // declared on such an update).
     let mut travelling = false;
     let mut extrapolation = Extrapolation::default();
+    // The medium subset ends for the rest of the run when its solve is rank-deficient (the
+    // subset does not fix the pose where every point may: very uneven per-point noise leaves a
+    // few rows most of the weight) or after MEDIUM_SUBSET_UPDATES updates without settling.
+    let mut medium_subset_refused = false;
+    let mut medium_subset_updates = 0;
     for iteration in first_iteration..first_iteration.saturating_add(stop_rule.max_updates) {
         laps.lap(&mut 0.0);
         let searching = weighting.annealing() || travelling;
@@ -217,8 +227,19 @@ fn iterate(
             Matching::EvidenceThroughout => StepPoints::Evidence,
             Matching::CoarseThroughout => StepPoints::Coarse,
             Matching::CoarseWhileSearching if searching => StepPoints::Coarse,
+            Matching::CoarseWhileSearching
+                if !medium_subset_refused
+                    && weighting.final_fit_on_subset()
+                    && problem.steps_on_subset(StepPoints::Medium) =>
+            {
+                StepPoints::Medium
+            }
             Matching::CoarseWhileSearching => StepPoints::Sample,
         };
+        // The plan's answer is the optimum of every sampled point: an update on a subset of
+        // them (coarse while travelling, medium while the final model is fitted) only steers
+        // there, and neither settles the model nor ends the run.
+        let on_subset = plan.matching == Matching::CoarseWhileSearching && problem.steps_on_subset(points);
         problem.linearise(&transform, points);
         laps.lap(&mut times.matching);
         let rows = problem.rows();
@@ -238,6 +259,14 @@ fn iterate(
             stop = StopReason::Degenerate;
             break;
         };
+        if points == StepPoints::Medium {
+            if solve.rank_deficient {
+                medium_subset_refused = true;
+                continue;
+            }
+            medium_subset_updates += 1;
+            medium_subset_refused = medium_subset_updates >= MEDIUM_SUBSET_UPDATES;
+        }
         iterations = iteration;
         let rows = problem.rows();
         let (rotation_change, translation_change) = transform_change(&transform, &solve.transform, &anchor);
@@ -279,12 +308,13 @@ fn iterate(
             && cycle_rotation <= stop_rule.rotation_tolerance;
         travelling = displacement > TRAVEL_WIDTHS * weighting.width();
         let converged = !(searching && travelling)
-            && match weighting.after_update(below_tolerance, displacement) {
+            && match weighting.after_update(below_tolerance, displacement, on_subset) {
                 Convergence::NotYet => false,
                 Convergence::Tolerance => below_tolerance,
                 Convergence::ToleranceOrCycle => below_tolerance || two_cycle,
                 Convergence::Resolved => true,
-            };
+            }
+            && !on_subset;
         if converged {
             stop = StopReason::Converged;
             break;

@@ -51,6 +51,10 @@ impl Weighting {
     }
 
     /// SIE's final round with its model held fixed (never for baselines).
+    pub(crate) fn final_fit_on_subset(&self) -> bool {
+        matches!(self, Weighting::Sie(schedule) if schedule.final_fit_on_subset())
+    }
+
     pub(crate) fn model_frozen(&self) -> bool {
         matches!(self, Weighting::Sie(schedule) if schedule.model_frozen())
     }
@@ -88,9 +92,14 @@ impl Weighting {
     }
 
     /// Which convergence tests apply after this update (SIE: only once β ≪ σ).
-    pub(crate) fn after_update(&mut self, below_tolerance: bool, displacement: f64) -> Convergence {
+    pub(crate) fn after_update(
+        &mut self,
+        below_tolerance: bool,
+        displacement: f64,
+        on_subset: bool,
+    ) -> Convergence {
         match self {
-            Weighting::Sie(schedule) => schedule.after_update(below_tolerance, displacement),
+            Weighting::Sie(schedule) => schedule.after_update(below_tolerance, displacement, on_subset),
             Weighting::Baseline { .. } => Convergence::ToleranceOrCycle,
         }
     }

@@ -32,6 +32,12 @@ use crate::registration::target::{NO_MATCH, PreparedTarget, sort_along_curve};
 /// behind the code", has what fewer or more cost).
 const COARSE_POINTS: usize = 5_000;
 
+/// After the annealing, while SIE still fits its final model, the updates steer towards the
+/// optimum and the histogram needs σ, not every digit of the pose: at most this many source
+/// points are matched then (σ/√20000 is below the final model's width by far), all of them once
+/// the model is frozen (docs/performance.md, issue 30, has what it saves on LiDAR frames).
+const MEDIUM_POINTS: usize = 20_000;
+
 /// Every ⌈len / limit⌉-th index of `sample` on average, picked by a hash of the index (curve
 /// order kept): about `limit` of them, or none when `sample` has at most `limit`.
 fn hashed_subset(sample: &[u32], limit: usize, seed: u64) -> Vec<u32> {
@@ -69,6 +75,8 @@ enum Subset {
     Sample,
     /// At most COARSE_POINTS of the sample, for steps while searching.
     Coarse,
+    /// At most MEDIUM_POINTS of the sample, for steps while the final model is fitted.
+    Medium,
     /// About EVIDENCE_POINTS of the sample, for the verdict's evidence.
     Evidence,
     /// Every source point, for the final evaluation when the sample is smaller.
@@ -117,6 +125,9 @@ pub(crate) struct CloudProblem<'a> {
     /// A fixed subset of `sample` (at most COARSE_POINTS) used while β is annealed; empty
     /// when the sample is small enough.
     coarse: Pass,
+    /// A fixed subset of `sample` (at most MEDIUM_POINTS) used while SIE fits its final model;
+    /// empty when the sample is small enough.
+    medium: Pass,
     /// A fixed subset of `sample` (about EVIDENCE_POINTS) for the verdict's evidence; empty
     /// when the sample is small enough.
     evidence: Pass,
@@ -177,7 +188,10 @@ impl<'a> CloudProblem<'a> {
             };
         let mut sample = sample_indices(source.len(), config.max_correspondences, config.seed);
         sort_along_curve(source, &mut sample);
+        // One seed for all subsets: with a medium factor dividing the coarse one, the coarse
+        // points are medium points too and their queries carry over.
         let coarse = hashed_subset(&sample, COARSE_POINTS, config.seed);
+        let medium = hashed_subset(&sample, MEDIUM_POINTS, config.seed);
         let evidence = hashed_subset(&sample, EVIDENCE_POINTS, config.seed);
         // Built now rather than at the first final evaluation, so the problem needs no source
         // afterwards; it is there at the registration's peak either way.
@@ -202,6 +216,7 @@ impl<'a> CloudProblem<'a> {
             metric: config.metric,
             sample: Pass::new(source, sample),
             coarse: Pass::new(source, coarse),
+            medium: Pass::new(source, medium),
             evidence: Pass::new(source, evidence),
             everything,
             source_sigma,
@@ -227,12 +242,13 @@ impl<'a> CloudProblem<'a> {
     }
 
     /// The pass `purpose` matches: for a step the sample (or its coarse subset while β is
-    /// annealed), for the final evaluation every source point, for evidence the evidence subset
+    /// annealed, its medium subset while the final model is fitted), for the final evaluation every source point, for evidence the evidence subset
     /// (the sample when that is small enough).
     fn pass_for(&self, purpose: Purpose) -> Subset {
         match purpose {
             Purpose::Evaluate if self.sample.order.len() < self.source_count => Subset::Everything,
             Purpose::Step(StepPoints::Coarse) if !self.coarse.order.is_empty() => Subset::Coarse,
+            Purpose::Step(StepPoints::Medium) if !self.medium.order.is_empty() => Subset::Medium,
             Purpose::Evidence | Purpose::Step(StepPoints::Evidence) if !self.evidence.order.is_empty() => {
                 Subset::Evidence
             }
@@ -248,6 +264,7 @@ impl<'a> CloudProblem<'a> {
             for pass in [
                 &mut self.sample,
                 &mut self.coarse,
+                &mut self.medium,
                 &mut self.evidence,
                 &mut self.everything,
             ] {
@@ -288,7 +305,7 @@ impl<'a> CloudProblem<'a> {
     /// subset at the same initial guess). The history is shared, so each copied query keeps its
     /// exact skip test: the matches are the same as from fresh queries, only cheaper.
     fn share_queries_into(&self, which: Subset, pass: &mut Pass) {
-        // The sample is the parent: coarse and evidence are subsequences of it (same order).
+        // The sample is the parent: the other subsets are subsequences of it (same order).
         if which == Subset::Everything {
             return;
         }
@@ -297,7 +314,7 @@ impl<'a> CloudProblem<'a> {
         } else {
             &self.sample.order
         };
-        let others: Vec<&Pass> = [Subset::Sample, Subset::Coarse, Subset::Evidence]
+        let others: Vec<&Pass> = [Subset::Sample, Subset::Coarse, Subset::Medium, Subset::Evidence]
             .into_iter()
             .filter(|&w| w != which)
             .map(|w| self.pass(w))
@@ -335,6 +352,7 @@ impl<'a> CloudProblem<'a> {
         match which {
             Subset::Sample => &self.sample,
             Subset::Coarse => &self.coarse,
+            Subset::Medium => &self.medium,
             Subset::Evidence => &self.evidence,
             Subset::Everything => &self.everything,
         }
@@ -344,6 +362,7 @@ impl<'a> CloudProblem<'a> {
         match which {
             Subset::Sample => &mut self.sample,
             Subset::Coarse => &mut self.coarse,
+            Subset::Medium => &mut self.medium,
             Subset::Evidence => &mut self.evidence,
             Subset::Everything => &mut self.everything,
         }
@@ -596,6 +615,10 @@ impl CloudProblem<'_> {
 impl Problem for CloudProblem<'_> {
     fn rematches(&self) -> bool {
         true
+    }
+
+    fn steps_on_subset(&self, points: StepPoints) -> bool {
+        self.pass_for(Purpose::Step(points)) != Subset::Sample
     }
 
     fn cols(&self) -> usize {

@@ -130,6 +130,8 @@ impl Rows {
 pub(crate) enum StepPoints {
     /// A fixed coarse subset of the sample: the basin, not the last digit.
     Coarse,
+    /// A fixed medium subset of the sample: the final model's fit, before the last digits.
+    Medium,
     /// Every sampled source point.
     Sample,
     /// The verdict's evidence subset (ICP; about EVIDENCE_POINTS of the sample): where a rival
@@ -144,6 +146,9 @@ pub(crate) trait Problem {
     /// Whether the pairs change with the transform (ICP re-matches; given correspondences do
     /// not).
     fn rematches(&self) -> bool;
+    /// Whether a step on `points` matches fewer source points than the sample (ICP with a
+    /// sample larger than that subset).
+    fn steps_on_subset(&self, points: StepPoints) -> bool;
     fn source_count(&self) -> usize;
     /// At most [`PROBE_POINTS`] source points, evenly strided in the caller's order: where
     /// two transforms are compared (`moved_apart`).

@@ -52,6 +52,10 @@ impl Problem for CorrespondenceProblem<'_> {
         false
     }
 
+    fn steps_on_subset(&self, _points: StepPoints) -> bool {
+        false
+    }
+
     fn cols(&self) -> usize {
         3
     }
