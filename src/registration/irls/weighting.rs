@@ -50,11 +50,13 @@ impl Weighting {
         matches!(self, Weighting::Sie(schedule) if schedule.annealing())
     }
 
-    /// SIE's final round with its model held fixed (never for baselines).
+    /// SIE's final round fitting its model, no subset's update settled yet (never for
+    /// baselines): the updates may match the medium subset.
     pub(crate) fn final_fit_on_subset(&self) -> bool {
         matches!(self, Weighting::Sie(schedule) if schedule.final_fit_on_subset())
     }
 
+    /// SIE's final round with its model held fixed (never for baselines).
     pub(crate) fn model_frozen(&self) -> bool {
         matches!(self, Weighting::Sie(schedule) if schedule.model_frozen())
     }

@@ -35,7 +35,8 @@ const COARSE_POINTS: usize = 5_000;
 /// After the annealing, while SIE still fits its final model, the updates steer towards the
 /// optimum and the histogram needs σ, not every digit of the pose: at most this many source
 /// points are matched then (σ/√20000 is below the final model's width by far), all of them once
-/// the model is frozen (docs/performance.md, issue 30, has what it saves on LiDAR frames).
+/// the model is frozen or the subset is handed over (`irls::iterate`: a rank-deficient or a
+/// long unsettled fit); docs/performance.md, issue 30, has what it saves on LiDAR frames.
 const MEDIUM_POINTS: usize = 20_000;
 
 /// Every ⌈len / limit⌉-th index of `sample` on average, picked by a hash of the index (curve
@@ -242,8 +243,9 @@ impl<'a> CloudProblem<'a> {
     }
 
     /// The pass `purpose` matches: for a step the sample (or its coarse subset while β is
-    /// annealed, its medium subset while the final model is fitted), for the final evaluation every source point, for evidence the evidence subset
-    /// (the sample when that is small enough).
+    /// annealed, its medium subset while the final model is fitted), for the final evaluation
+    /// every source point, for evidence the evidence subset (the sample when that is small
+    /// enough).
     fn pass_for(&self, purpose: Purpose) -> Subset {
         match purpose {
             Purpose::Evaluate if self.sample.order.len() < self.source_count => Subset::Everything,
