@@ -1,5 +1,8 @@
 //! Surface normals by k-nearest-neighbour PCA, for point-to-plane ICP when the target cloud
 //! comes without normals.
+use std::collections::HashMap;
+use std::sync::Mutex;
+
 use crate::geometry::{cross, dot, splitmix64};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
@@ -41,7 +44,10 @@ const FIRST_LINE_QUERY: usize = 4;
 ///   every normal is zero.
 /// * A neighbourhood that is one scan line (middle extent under a third of the largest) whose
 ///   smallest spread lies across the line of sight takes its normal from up to 8k neighbours
-///   that reach the neighbouring line of the same surface, or gets `[0, 0, 0]`.
+///   that reach the neighbouring line of the same surface, or gets `[0, 0, 0]`: those of the
+///   nearest anchor among its k neighbours (one point of the cloud in four, fixed by a hash of
+///   its index) when the anchor's k nearest are such a line too and its plane holds the point,
+///   otherwise its own.
 /// * Parallel over fixed chunks of points; the result does not depend on the thread count.
 ///
 /// # Panics
@@ -57,7 +63,15 @@ pub fn estimate_normals(
         points.len(),
         "estimate_normals: the index must be built from `points`"
     );
-    normals_from(points, points, index, k, f64::INFINITY, workers)
+    normals_from(
+        points,
+        points,
+        index,
+        k,
+        f64::INFINITY,
+        &AnchorPlanes::default(),
+        workers,
+    )
 }
 
 /// A k-NN neighbourhood whose thickness (smallest covariance eigenvalue) is above this fraction
@@ -95,6 +109,9 @@ pub fn estimate_normals_at_data_scale(
 pub struct NormalScale {
     factor: usize,
     thinned: Option<(Vec<Point>, NearestNeighbours)>,
+    /// The anchors' planes in the cloud the neighbours come from, kept between calls (a
+    /// prepared target estimates its normals in batches as registrations reach them).
+    anchors: AnchorPlanes,
 }
 
 impl NormalScale {
@@ -122,6 +139,7 @@ impl NormalScale {
         let mut chosen = NormalScale {
             factor: 1,
             thinned: None,
+            anchors: AnchorPlanes::default(),
         };
         // The ratio of the last factor tried, accepted or not.
         let (mut trial, mut trial_ratio) = (1, ratio);
@@ -143,6 +161,7 @@ impl NormalScale {
                 chosen = NormalScale {
                     factor: trial,
                     thinned: Some((thinned, thin_index)),
+                    anchors: AnchorPlanes::default(),
                 };
             } else if !in_ball {
                 break;
@@ -195,10 +214,16 @@ impl NormalScale {
         workers: &Workers,
     ) -> Vec<Point> {
         match &self.thinned {
-            None => normals_from(queries, points, index, k, max_thickness, workers),
-            Some((thinned, thin_index)) => {
-                normals_from(queries, thinned, thin_index, k, max_thickness, workers)
-            }
+            None => normals_from(queries, points, index, k, max_thickness, &self.anchors, workers),
+            Some((thinned, thin_index)) => normals_from(
+                queries,
+                thinned,
+                thin_index,
+                k,
+                max_thickness,
+                &self.anchors,
+                workers,
+            ),
         }
     }
 }
@@ -275,46 +300,231 @@ fn normals_from(
     index: &NearestNeighbours,
     k: usize,
     max_thickness: f64,
+    anchors: &AnchorPlanes,
     workers: &Workers,
 ) -> Vec<Point> {
     let mut normals = vec![[0.0; 3]; points.len()];
     workers.for_each_chunk_of(NORMALS_CHUNK, &mut normals, |first, chunk| {
-        let mut neighbours = Vec::with_capacity(k * MAX_LINE_WIDENING);
+        let mut lines = LineNormals::new(cloud, index, k, max_thickness, anchors);
         for (offset, normal) in chunk.iter_mut().enumerate() {
-            let p = &points[first + offset];
-            index.nearest_k(p, k, &mut neighbours);
-            *normal = normal_widening_lines(p, cloud, index, k, max_thickness, &mut neighbours);
+            *normal = lines.normal_at(&points[first + offset]);
         }
+        lines.keep_found();
     });
     normals
 }
 
-/// The normal at `p` from its k nearest points `neighbours` of `cloud`; when they are one scan
-/// line ([`SCAN_LINE_RATIO`]), from the smallest of 2k, 4k, … [`MAX_LINE_WIDENING`]·k nearest
-/// points that is no line and reaches a neighbouring line ([`reaches_a_neighbouring_line`]),
-/// accepted only as a thin plane (thickness below [`NOISY_NEIGHBOURHOOD_RATIO`] and
-/// `max_thickness`) through `p` (within four standard deviations of its thickness).
-fn normal_widening_lines(
+/// Anchors' planes kept at most: about 80 bytes each.
+const MAX_KEPT_ANCHORS: usize = 1 << 20;
+
+/// The widened planes of the anchors of one cloud found so far, by the anchor's index (`None`:
+/// no scan line, or its plane was refused). Each is a function of the anchor alone, so which
+/// call or thread found it first does not matter.
+#[derive(Default)]
+pub(crate) struct AnchorPlanes(Mutex<HashMap<usize, Option<LinePlane>>>);
+
+impl AnchorPlanes {
+    fn get(&self, anchor: usize) -> Option<Option<LinePlane>> {
+        self.0.lock().ok()?.get(&anchor).copied()
+    }
+
+    /// Keeps `found`, up to [`MAX_KEPT_ANCHORS`] in all (beyond, they are found again).
+    fn keep(&self, found: &mut HashMap<usize, Option<LinePlane>>) {
+        // A poisoned lock only means another chunk panicked; its entries are still right.
+        let mut kept = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        for (anchor, plane) in found.drain() {
+            if kept.len() >= MAX_KEPT_ANCHORS {
+                break;
+            }
+            kept.insert(anchor, plane);
+        }
+    }
+}
+
+/// One point of a cloud in this many is an anchor: a scan-line point whose widened plane the
+/// scan-line points that have it among their k nearest take (see [`LineNormals::normal_at`]).
+const ANCHOR_EVERY: u64 = 4;
+
+fn is_anchor(point_index: usize) -> bool {
+    splitmix64(point_index as u64) % ANCHOR_EVERY == 0
+}
+
+/// The plane a scan line's widened neighbourhood spans ([`widened_plane`]).
+#[derive(Clone, Copy)]
+pub(crate) struct LinePlane {
+    /// Unit normal, towards the origin as seen from the point it was fitted for.
+    normal: Point,
+    centre: Point,
+    /// Variance of the neighbourhood along the normal.
+    thickness_squared: f64,
+}
+
+impl LinePlane {
+    /// Whether `p` lies on the plane, within four standard deviations of its thickness.
+    fn holds(&self, p: &Point) -> bool {
+        let offset = dot(&self.normal, &[0, 1, 2].map(|d| p[d] - self.centre[d]));
+        offset * offset <= 16.0 * self.thickness_squared
+    }
+
+    /// The normal oriented towards the origin as seen from `p`.
+    fn normal_seen_from(&self, p: &Point) -> Point {
+        if dot(&self.normal, p) > 0.0 {
+            self.normal.map(|c| -c)
+        } else {
+            self.normal
+        }
+    }
+}
+
+/// Normals of one chunk of points, with the widened planes of the anchors met so far: a widened
+/// query (40 or 80 nearest points) costs several of the k-nearest query every normal makes, and
+/// the scan-line points around an anchor share its plane. An anchor's plane depends on the
+/// anchor alone, so the normals do not depend on the chunks or their order.
+struct LineNormals<'a> {
+    cloud: &'a [Point],
+    index: &'a NearestNeighbours,
+    k: usize,
+    max_thickness: f64,
+    /// The anchors' planes found before this chunk.
+    kept: &'a AnchorPlanes,
+    /// Those this chunk found; `None` when the anchor is no scan line or its plane was refused.
+    anchors: HashMap<usize, Option<LinePlane>>,
+    neighbours: Vec<usize>,
+    anchor_neighbours: Vec<usize>,
+}
+
+impl<'a> LineNormals<'a> {
+    fn new(
+        cloud: &'a [Point],
+        index: &'a NearestNeighbours,
+        k: usize,
+        max_thickness: f64,
+        kept: &'a AnchorPlanes,
+    ) -> Self {
+        LineNormals {
+            cloud,
+            index,
+            k,
+            max_thickness,
+            kept,
+            anchors: HashMap::new(),
+            neighbours: Vec::with_capacity(k * MAX_LINE_WIDENING),
+            anchor_neighbours: Vec::with_capacity(k * MAX_LINE_WIDENING),
+        }
+    }
+
+    /// The normal at `p` from its k nearest points; when they are one scan line
+    /// ([`SCAN_LINE_RATIO`]) whose smallest spread lies across the line of sight, the plane of
+    /// the nearest anchor among them if that anchor's own k nearest are such a line and its
+    /// widened plane holds `p`, otherwise `p`'s own widened plane ([`widened_plane`]), or
+    /// `[0, 0, 0]`.
+    fn normal_at(&mut self, p: &Point) -> Point {
+        let (cloud, index, k) = (self.cloud, self.index, self.k);
+        index.nearest_k(p, k, &mut self.neighbours);
+        let Some(line) = scan_line_across_sight(p, cloud, k, &self.neighbours) else {
+            return normal_of(p, &covariance(cloud, &self.neighbours), self.max_thickness);
+        };
+        let Some(line) = line else {
+            return [0.0; 3];
+        };
+        if let Some(&anchor) = self.neighbours.iter().find(|&&i| is_anchor(i)) {
+            if cloud[anchor] == *p {
+                // The anchor is `p` (or a copy of it): its plane is `p`'s own.
+                let plane = widened_plane(
+                    p,
+                    &line,
+                    cloud,
+                    index,
+                    k,
+                    self.max_thickness,
+                    &mut self.neighbours,
+                );
+                self.anchors.insert(anchor, plane);
+                return plane.map_or([0.0; 3], |plane| plane.normal);
+            }
+            if let Some(plane) = self.anchor_plane(anchor).filter(|plane| plane.holds(p)) {
+                return plane.normal_seen_from(p);
+            }
+        }
+        widened_plane(
+            p,
+            &line,
+            cloud,
+            index,
+            k,
+            self.max_thickness,
+            &mut self.neighbours,
+        )
+        .map_or([0.0; 3], |plane| plane.normal)
+    }
+
+    /// Keeps the anchors' planes this chunk found for later chunks and calls.
+    fn keep_found(&mut self) {
+        self.kept.keep(&mut self.anchors);
+    }
+
+    fn anchor_plane(&mut self, anchor: usize) -> Option<LinePlane> {
+        if let Some(plane) = self.anchors.get(&anchor) {
+            return *plane;
+        }
+        if let Some(plane) = self.kept.get(anchor) {
+            self.anchors.insert(anchor, plane);
+            return plane;
+        }
+        let (cloud, index, k) = (self.cloud, self.index, self.k);
+        let a = &cloud[anchor];
+        index.nearest_k(a, k, &mut self.anchor_neighbours);
+        let plane = match scan_line_across_sight(a, cloud, k, &self.anchor_neighbours) {
+            Some(Some(line)) => widened_plane(
+                a,
+                &line,
+                cloud,
+                index,
+                k,
+                self.max_thickness,
+                &mut self.anchor_neighbours,
+            ),
+            _ => None,
+        };
+        self.anchors.insert(anchor, plane);
+        plane
+    }
+}
+
+/// `None` when the k nearest points `neighbours` of `p` are no scan line whose smallest spread
+/// lies across the line of sight (or are fewer than k, or k < 3); `Some(None)` for such a line
+/// without a unique direction; otherwise the line.
+fn scan_line_across_sight(
     p: &Point,
+    cloud: &[Point],
+    k: usize,
+    neighbours: &[usize],
+) -> Option<Option<ScanLine>> {
+    let spread = covariance(cloud, neighbours);
+    if k < 3 || neighbours.len() < k || !is_scan_line(&spread) || !across_line_of_sight(p, &spread) {
+        return None;
+    }
+    let [_, across, along] = eigenvalues_ascending(&spread);
+    Some(null_vector(&spread, along).map(|direction| ScanLine {
+        centre: centroid(cloud, neighbours),
+        direction,
+        width_squared: across.max(0.0),
+    }))
+}
+
+/// The plane of the smallest of the 2k, 4k, … [`MAX_LINE_WIDENING`]·k nearest points of `p`
+/// (a point whose k nearest are the scan line `line`) that is no line and reaches a
+/// neighbouring line ([`reaches_a_neighbouring_line`]), accepted only as a thin plane
+/// (thickness below [`NOISY_NEIGHBOURHOOD_RATIO`] and `max_thickness`) through `p`.
+fn widened_plane(
+    p: &Point,
+    line: &ScanLine,
     cloud: &[Point],
     index: &NearestNeighbours,
     k: usize,
     max_thickness: f64,
     neighbours: &mut Vec<usize>,
-) -> Point {
-    let spread = covariance(cloud, neighbours);
-    if k < 3 || neighbours.len() < k || !is_scan_line(&spread) || !across_line_of_sight(p, &spread) {
-        return normal_of(p, &spread, max_thickness);
-    }
-    let [_, across, along] = eigenvalues_ascending(&spread);
-    let Some(direction) = null_vector(&spread, along) else {
-        return [0.0; 3];
-    };
-    let line = ScanLine {
-        centre: centroid(cloud, neighbours),
-        direction,
-        width_squared: across.max(0.0),
-    };
+) -> Option<LinePlane> {
     // The widest neighbourhood queried so far, as a multiple of k.
     let mut queried = 1;
     let mut widening = 2;
@@ -326,19 +536,18 @@ fn normal_widening_lines(
         // Ascending distance: the nearest k·widening are the first.
         let neighbours = &neighbours[..(k * widening).min(neighbours.len())];
         let spread = covariance(cloud, neighbours);
-        if !is_scan_line(&spread) && reaches_a_neighbouring_line(&line, cloud, neighbours) {
+        if !is_scan_line(&spread) && reaches_a_neighbouring_line(line, cloud, neighbours) {
             let normal = normal_of(p, &spread, max_thickness.min(NOISY_NEIGHBOURHOOD_RATIO));
-            let centre = centroid(cloud, neighbours);
-            let offset = dot(&normal, &[0, 1, 2].map(|d| p[d] - centre[d]));
-            return if offset * offset <= 16.0 * quadratic_form(&spread, &normal) {
-                normal
-            } else {
-                [0.0; 3]
+            let plane = LinePlane {
+                normal,
+                centre: centroid(cloud, neighbours),
+                thickness_squared: quadratic_form(&spread, &normal),
             };
+            return (normal != [0.0; 3] && plane.holds(p)).then_some(plane);
         }
         widening *= 2;
     }
-    [0.0; 3]
+    None
 }
 
 /// The k nearest points of a point, found to be one scan line.
@@ -711,6 +920,71 @@ mod tests {
         assert!(is_scan_line(&line));
         let trap = smallest_eigenvector(&line).unwrap();
         assert!(tilt(&trap) > 15.0, "{}", tilt(&trap));
+    }
+
+    /// Scan-line points take the plane of an anchor among their neighbours: a point's normal
+    /// must still depend on that point alone, not on which other points are asked with it or
+    /// in what order (a prepared target estimates them in batches as a registration reaches
+    /// them).
+    #[test]
+    fn shared_scan_line_planes_do_not_depend_on_the_batch() {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(23);
+        let rings = ground_rings(&mut rng, &[4.0, 4.35, 4.75, 5.2]);
+        let index = NearestNeighbours::new(&rings).unwrap();
+        let whole = normals_from(
+            &rings,
+            &rings,
+            &index,
+            10,
+            f64::INFINITY,
+            &AnchorPlanes::default(),
+            &Workers::new(1).unwrap(),
+        );
+        // Every seventh point, backwards, on two threads.
+        let picked: Vec<usize> = (0..rings.len()).rev().step_by(7).collect();
+        let queries: Vec<Point> = picked.iter().map(|&i| rings[i]).collect();
+        let kept = AnchorPlanes::default();
+        let batch = normals_from(
+            &queries,
+            &rings,
+            &index,
+            10,
+            f64::INFINITY,
+            &kept,
+            &Workers::new(2).unwrap(),
+        );
+        for (n, &i) in batch.iter().zip(&picked) {
+            assert_eq!(*n, whole[i], "point {i}");
+        }
+        // Again with the anchors' planes the first batch kept.
+        let batch = normals_from(
+            &queries,
+            &rings,
+            &index,
+            10,
+            f64::INFINITY,
+            &kept,
+            &Workers::new(2).unwrap(),
+        );
+        for (n, &i) in batch.iter().zip(&picked) {
+            assert_eq!(*n, whole[i], "point {i}");
+        }
+        // The rings are scan lines, and most of their points take an anchor's plane.
+        let shared = rings
+            .iter()
+            .zip(&whole)
+            .enumerate()
+            .filter(|(i, (p, n))| {
+                let mut nearest = Vec::new();
+                index.nearest_k(p, 10, &mut nearest);
+                !is_anchor(*i) && nearest.iter().any(|&j| is_anchor(j) && whole[j] == **n)
+            })
+            .count();
+        assert!(
+            shared > rings.len() / 2,
+            "{shared} of {} share a plane",
+            rings.len()
+        );
     }
 
     /// A pole standing on the ground: its points form a line, the ground beside it a surface

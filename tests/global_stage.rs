@@ -8,10 +8,10 @@ use std::f64::consts::PI;
 use std::path::Path;
 use std::time::Instant;
 
-use common::{data_dir, pose_error};
+use common::{LidarPair, data_dir, pose_error};
 use nalgebra::{Matrix4, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
 use sie::geometry::{bounding_box_diagonal, transform_point};
-use sie::io::{read_cloud, read_transform};
+use sie::io::read_cloud;
 use sie::{Error, Hooks, Point, RegistrationConfig, Starts, Verdict, register_clouds};
 
 fn global() -> RegistrationConfig {
@@ -102,10 +102,11 @@ fn bunny_scans_from_any_rotation_with_no_guess() {
 #[test]
 fn lidar_pair_turned_half_a_turn_with_no_guess() {
     let Some(dir) = data_dir() else { return };
-    let folder = dir.join("small_gicp-data");
-    let source = read_cloud(&folder.join("source.ply")).unwrap().points;
-    let target = read_cloud(&folder.join("target.ply")).unwrap().points;
-    let truth = read_transform(&folder.join("T_target_source.txt")).unwrap();
+    let LidarPair {
+        source,
+        target,
+        truth,
+    } = LidarPair::read(&dir);
     let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, -0.2, 1.0));
     check(
         "LiDAR pair turned 180°",

@@ -2,7 +2,7 @@
 #![cfg(feature = "io")]
 mod common;
 
-use common::{data_dir, icp, pose_error};
+use common::{LidarPair, data_dir, icp, pose_error};
 use nalgebra::Matrix4;
 use sie::io::{read_cloud, read_transform};
 use sie::{CostFunction, Hooks, Metric, RegistrationConfig, StopReason, register_clouds};
@@ -54,10 +54,11 @@ fn bunny_bun0_to_bun4_point_to_plane_from_identity() {
 #[test]
 fn lidar_pair_point_to_plane_from_identity() {
     let Some(dir) = data_dir() else { return };
-    let folder = dir.join("small_gicp-data");
-    let source = read_cloud(&folder.join("source.ply")).unwrap().points;
-    let target = read_cloud(&folder.join("target.ply")).unwrap().points;
-    let truth = read_transform(&folder.join("T_target_source.txt")).unwrap();
+    let LidarPair {
+        source,
+        target,
+        truth,
+    } = LidarPair::read(&dir);
     let result = icp(&source, &target, &RegistrationConfig::default());
     let (rot, trans) = pose_error(&result.transform, &truth);
     println!(
@@ -100,10 +101,11 @@ impl sie::NoiseScales for RangeSquaredNoise {
 #[test]
 fn lidar_pair_with_depth_camera_noise_converges_from_one_start() {
     let Some(dir) = data_dir() else { return };
-    let folder = dir.join("small_gicp-data");
-    let source = read_cloud(&folder.join("source.ply")).unwrap().points;
-    let target = read_cloud(&folder.join("target.ply")).unwrap().points;
-    let truth = read_transform(&folder.join("T_target_source.txt")).unwrap();
+    let LidarPair {
+        source,
+        target,
+        truth,
+    } = LidarPair::read(&dir);
     let config = RegistrationConfig {
         starts: sie::Starts::InitialGuess,
         ..RegistrationConfig::default()
@@ -157,10 +159,11 @@ fn lidar_pair_with_depth_camera_noise_converges_from_one_start() {
 #[test]
 fn lidar_pair_with_its_missing_returns_at_the_origin() {
     let Some(dir) = data_dir() else { return };
-    let folder = dir.join("small_gicp-data");
-    let source = read_cloud(&folder.join("source.ply")).unwrap().points;
-    let target = read_cloud(&folder.join("target.ply")).unwrap().points;
-    let truth = read_transform(&folder.join("T_target_source.txt")).unwrap();
+    let LidarPair {
+        source,
+        target,
+        truth,
+    } = LidarPair::read(&dir);
     let origins = source.iter().filter(|p| **p == [0.0; 3]).count();
     assert!(origins > 5_000, "{origins} source points at 0 0 0");
     let narrow = RegistrationConfig {

@@ -34,6 +34,29 @@ pub fn data_dir() -> Option<PathBuf> {
     None
 }
 
+/// The small_gicp LiDAR pair (`small_gicp-data`): both scans as read, missing returns at 0 0 0
+/// kept, and `T_target_source`.
+#[cfg(feature = "io")]
+pub struct LidarPair {
+    pub source: Vec<Point>,
+    pub target: Vec<Point>,
+    pub truth: Matrix4<f64>,
+}
+
+#[cfg(feature = "io")]
+impl LidarPair {
+    /// Reads the pair from the data folder `dir`; panics when a file is missing or malformed.
+    pub fn read(dir: &Path) -> Self {
+        use sie::io::{read_cloud, read_transform};
+        let folder = dir.join("small_gicp-data");
+        LidarPair {
+            source: read_cloud(&folder.join("source.ply")).unwrap().points,
+            target: read_cloud(&folder.join("target.ply")).unwrap().points,
+            truth: read_transform(&folder.join("T_target_source.txt")).unwrap(),
+        }
+    }
+}
+
 /// Rotation (degrees) and translation distance of `estimate` from `truth`.
 pub fn pose_error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
     let difference = truth.try_inverse().expect("rigid") * estimate;
