@@ -324,14 +324,18 @@ const MAX_KEPT_ANCHORS: usize = 1 << 20;
 pub(crate) struct AnchorPlanes(Mutex<HashMap<usize, Option<LinePlane>>>);
 
 impl AnchorPlanes {
+    /// A poisoned lock only means another chunk panicked; the entries are still right.
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<usize, Option<LinePlane>>> {
+        self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
     fn get(&self, anchor: usize) -> Option<Option<LinePlane>> {
-        self.0.lock().ok()?.get(&anchor).copied()
+        self.lock().get(&anchor).copied()
     }
 
     /// Keeps `found`, up to [`MAX_KEPT_ANCHORS`] in all (beyond, they are found again).
     fn keep(&self, found: &mut HashMap<usize, Option<LinePlane>>) {
-        // A poisoned lock only means another chunk panicked; its entries are still right.
-        let mut kept = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut kept = self.lock();
         for (anchor, plane) in found.drain() {
             if kept.len() >= MAX_KEPT_ANCHORS {
                 break;
