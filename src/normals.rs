@@ -433,17 +433,25 @@ impl<'a> LineNormals<'a> {
         };
         if let Some(&anchor) = self.neighbours.iter().find(|&&i| is_anchor(i)) {
             if cloud[anchor] == *p {
-                // The anchor is `p` (or a copy of it): its plane is `p`'s own.
-                let plane = widened_plane(
-                    p,
-                    &line,
-                    cloud,
-                    index,
-                    k,
-                    self.max_thickness,
-                    &mut self.neighbours,
-                );
-                self.anchors.insert(anchor, plane);
+                // The anchor is `p` (or a copy of it): its plane is `p`'s own, found already
+                // when an earlier point had the anchor among its nearest, else found now from
+                // the neighbours at hand.
+                let plane = match self.known_anchor_plane(anchor) {
+                    Some(plane) => plane,
+                    None => {
+                        let plane = widened_plane(
+                            p,
+                            &line,
+                            cloud,
+                            index,
+                            k,
+                            self.max_thickness,
+                            &mut self.neighbours,
+                        );
+                        self.anchors.insert(anchor, plane);
+                        plane
+                    }
+                };
                 return plane.map_or([0.0; 3], |plane| plane.normal);
             }
             if let Some(plane) = self.anchor_plane(anchor).filter(|plane| plane.holds(p)) {
@@ -467,12 +475,19 @@ impl<'a> LineNormals<'a> {
         self.kept.keep(&mut self.anchors);
     }
 
-    fn anchor_plane(&mut self, anchor: usize) -> Option<LinePlane> {
+    /// The plane of `anchor` when this chunk or an earlier call found it (`Some(None)`: it is
+    /// no scan line, or its plane was refused).
+    fn known_anchor_plane(&mut self, anchor: usize) -> Option<Option<LinePlane>> {
         if let Some(plane) = self.anchors.get(&anchor) {
-            return *plane;
+            return Some(*plane);
         }
-        if let Some(plane) = self.kept.get(anchor) {
-            self.anchors.insert(anchor, plane);
+        let plane = self.kept.get(anchor)?;
+        self.anchors.insert(anchor, plane);
+        Some(plane)
+    }
+
+    fn anchor_plane(&mut self, anchor: usize) -> Option<LinePlane> {
+        if let Some(plane) = self.known_anchor_plane(anchor) {
             return plane;
         }
         let (cloud, index, k) = (self.cloud, self.index, self.k);
