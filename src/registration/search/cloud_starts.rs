@@ -170,9 +170,16 @@ pub(crate) fn register_from_starts(
         // Further, a result GOOD on its own evidence ends the search too when it corrected
         // the guess locally or the paper's run from it stays there (as one start's must,
         // `register_one_start`): the other starts are for a first start that is weak or does
-        // not hold. (An exact fit, σ = 0, has no widths to count: `moved` is NaN there and
-        // neither rule applies.)
-        if moved > REACHED_SIGMAS && best.best_is_good_alone() {
+        // not hold. So does one GOOD but for its conditioning within a local correction's
+        // reach, when that run stays: it is no local correction while a direction is left
+        // free, and from further away the other starts may find a pose the loose one missed.
+        // (An exact fit, σ = 0, has no widths to count: `moved` is NaN there and neither rule
+        // applies.)
+        let good_alone = best.best_is_good_alone();
+        let loose_nearby = !good_alone
+            && best.best_is_good_alone_but_for_conditioning()
+            && within_local_reach(problem, &best, &init);
+        if moved > REACHED_SIGMAS && (good_alone || loose_nearby) {
             if corrected_locally(problem, &best, &init) {
                 break;
             }
@@ -262,10 +269,15 @@ const LOCAL_REACH: f64 = 0.5;
 
 /// Whether the best result corrected the guess `init` locally (see [`LOCAL_REACH`]).
 fn corrected_locally(problem: &CloudProblem<'_>, best: &BestOfStarts, init: &Matrix4<f64>) -> bool {
-    best.best_is_constrained()
-        && best.best_pose().is_some_and(|(transform, _)| {
-            moved_apart(problem.probe_points(), init, &transform) < LOCAL_REACH * problem.target_spread()
-        })
+    best.best_is_constrained() && within_local_reach(problem, best, init)
+}
+
+/// Whether the best result moved the source by less than [`LOCAL_REACH`] of the target's
+/// spread from the guess `init`.
+fn within_local_reach(problem: &CloudProblem<'_>, best: &BestOfStarts, init: &Matrix4<f64>) -> bool {
+    best.best_pose().is_some_and(|(transform, _)| {
+        moved_apart(problem.probe_points(), init, &transform) < LOCAL_REACH * problem.target_spread()
+    })
 }
 
 /// Where a run from the best result's own pose ended.
