@@ -213,7 +213,9 @@ fn a_loose_result_beyond_ten_sigmas_ends_the_search_once_it_stays() {
     let source = scanner.sweep(&street, &(target_pose * motion), None, 2);
     let truth = motion.to_homogeneous();
     let map = voxel_centres(&target, 0.25);
-    let guess = Translation3::new(0.06, 0.0, 0.0).to_homogeneous() * truth;
+    // Metres the guess is off along the street.
+    const GUESS_OFF: f64 = 0.06;
+    let guess = Translation3::new(GUESS_OFF, 0.0, 0.0).to_homogeneous() * truth;
     let config = RegistrationConfig::default();
     let result =
         register_clouds(&source, &map, None, Some(&guess), &config, Hooks::default()).expect("registration");
@@ -225,8 +227,11 @@ fn a_loose_result_beyond_ten_sigmas_ends_the_search_once_it_stays() {
     assert!(rotation < 0.05 && translation < 0.01, "{case}");
     // The case this test is for: loose, and moved beyond ten σ from the guess.
     assert!(result.quality.conditioning < sie::MIN_CONDITIONING, "{case}");
-    assert!(0.06 > 10.0 * result.sigma[0], "{case}");
-    assert_eq!(result.search.starts_run, 2, "{case}: the first start and its rerun");
+    assert!(GUESS_OFF > 10.0 * result.sigma[0], "{case}");
+    assert_eq!(
+        result.search.starts_run, 2,
+        "{case}: the first start and its rerun"
+    );
 }
 
 /// The centroid of the points in each cube of side `voxel`.
@@ -240,8 +245,10 @@ fn voxel_centres(points: &[Point], voxel: f64) -> Vec<Point> {
         }
         *count += 1.0;
     }
-    let mut centres: Vec<([i64; 3], Point)> =
-        cells.into_iter().map(|(key, (sum, count))| (key, sum.map(|s| s / count))).collect();
+    let mut centres: Vec<([i64; 3], Point)> = cells
+        .into_iter()
+        .map(|(key, (sum, count))| (key, sum.map(|s| s / count)))
+        .collect();
     // A fixed order: the registration's sampling follows the points' order.
     centres.sort_by_key(|(key, _)| *key);
     centres.into_iter().map(|(_, centre)| centre).collect()
