@@ -175,11 +175,11 @@ pub(crate) fn register_from_starts(
         // free, and from further away the other starts may find a pose the loose one missed.
         // (An exact fit, σ = 0, has no widths to count: `moved` is NaN there and neither rule
         // applies.)
-        let good_alone = best.best_is_good_alone();
-        let loose_nearby = !good_alone
-            && best.best_is_good_alone_but_for_conditioning()
-            && within_local_reach(problem, &best, &init);
-        if moved > REACHED_SIGMAS && (good_alone || loose_nearby) {
+        if moved > REACHED_SIGMAS
+            && (best.best_is_good_alone()
+                || (best.best_is_good_alone_but_for_conditioning()
+                    && within_local_reach(problem, &best, &init)))
+        {
             if corrected_locally(problem, &best, &init) {
                 break;
             }
