@@ -201,7 +201,7 @@ fn odometry_off_a_standstill_takes_no_frame_held_at_zero_motion() {
 /// it loosely fixed (DOUBTFUL for the conditioning alone). From a constant-velocity guess 6 cm
 /// off along the street, beyond ten of the fitted σ, the first start ends right; the search
 /// then ends once the paper's run from that result stays there, instead of running its other
-/// two starts from the guess (a frame-to-map street ran three starts a frame so).
+/// two starts from the guess (frames of a frame-to-map street ran all three so).
 #[test]
 fn a_loose_result_beyond_ten_sigmas_ends_the_search_once_it_stays() {
     // 64 beams: the 32-beam sweeps' voxel centres fix the motion along the street well.
