@@ -486,7 +486,8 @@ class Context {
 
     /** Starts the following registrations from the noise model of `previous` (an earlier SIE
      * registration's summary): for sequences registered from good guesses; falls back to the
-     * full search by itself when the guess was bad (sie_context_set_warm_start). */
+     * full search by itself when the guess was bad; a summary whose verdict is DOUBTFUL or
+     * UNSUPPORTED clears it (sie_context_set_warm_start). */
     Context &set_warm_start(const Summary &previous) {
         sie_summary raw{};
         for (std::size_t i = 0; i < 3; ++i) {
@@ -497,6 +498,7 @@ class Context {
         raw.noise_shape = previous.noise_shape;
         raw.inlier_fraction = previous.inlier_fraction;
         raw.histogram_count = previous.histogram_count;
+        raw.verdict = static_cast<std::uint32_t>(previous.verdict);
         check(sie_context_set_warm_start(get(), &raw));
         return *this;
     }

@@ -366,9 +366,12 @@ fn noise_after_a_warm_start_is_not_good() {
     let prepared = PreparedTarget::new(&target, None, &options).unwrap();
     let cold = register_clouds_to(&source, &prepared, None, &config, Hooks::default()).unwrap();
     assert_eq!(cold.quality.verdict, Verdict::Unsupported, "{:?}", cold.quality);
-    // The warm model of a right registration of the same scale (σ 2 cm in a 1 m cube).
+    // A result that is not GOOD gives no warm start (the next frame runs cold) ...
+    assert_eq!(WarmStart::of(&cold), None);
+    // ... but a caller may still give its model, or that of a right registration of the same
+    // scale (σ 2 cm in a 1 m cube).
     for warm in [
-        WarmStart::of(&cold).unwrap(),
+        WarmStart::from_fit(&cold.sigma, cold.penalty, cold.noise_shape, cold.inlier_fraction).unwrap(),
         WarmStart {
             sigma: 0.02,
             penalty: 2.0,

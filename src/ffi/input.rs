@@ -5,8 +5,9 @@ use core::mem::{align_of, size_of};
 
 use nalgebra::Matrix4;
 
+use super::CEnum;
 use super::boundary::FfiError;
-use super::{sie_status, sie_summary};
+use super::{sie_status, sie_summary, sie_verdict};
 use crate::WarmStart;
 use crate::geometry::{Rigid, is_finite};
 use crate::memory::try_vec;
@@ -99,24 +100,30 @@ pub(crate) unsafe fn read_array<T: Copy>(ptr: *const T, len: usize, name: &str) 
     Ok(copy)
 }
 
-/// The noise model of a summary a registration filled (`sie_context_set_warm_start`). Reads
+/// The noise model of a summary a registration filled (`sie_context_set_warm_start`), `None`
+/// when its verdict is DOUBTFUL or UNSUPPORTED (as `WarmStart::of`: that frame's successor
+/// runs cold; NONE, a summary filled by hand, is taken as given). Reads
 /// only its number fields (a `bool` with another bit pattern would be undefined behaviour to
 /// copy).
 ///
 /// # Safety
 /// `ptr` is valid for reading one `sie_summary` (NULL and misalignment are reported).
-pub(crate) unsafe fn read_warm_start(ptr: *const sie_summary, name: &str) -> Result<WarmStart, FfiError> {
+pub(crate) unsafe fn read_warm_start(
+    ptr: *const sie_summary,
+    name: &str,
+) -> Result<Option<WarmStart>, FfiError> {
     check_non_null(ptr, name)?;
     check_aligned(ptr, name)?;
     // SAFETY: non-NULL, aligned and readable per the contract; each field is read by value
     // through a raw place, f64 and u32 have no invalid bit patterns.
-    let (sigma, penalty, noise_shape, inlier_fraction, histogram_count) = unsafe {
+    let (sigma, penalty, noise_shape, inlier_fraction, histogram_count, verdict) = unsafe {
         (
             core::ptr::addr_of!((*ptr).sigma).read(),
             core::ptr::addr_of!((*ptr).penalty).read(),
             core::ptr::addr_of!((*ptr).noise_shape).read(),
             core::ptr::addr_of!((*ptr).inlier_fraction).read(),
             core::ptr::addr_of!((*ptr).histogram_count).read(),
+            core::ptr::addr_of!((*ptr).verdict).read(),
         )
     };
     if !(1..=3).contains(&histogram_count) {
@@ -125,13 +132,16 @@ pub(crate) unsafe fn read_warm_start(ptr: *const sie_summary, name: &str) -> Res
              summary, or not one a registration filled)"
         )));
     }
-    WarmStart::from_fit(
+    let verdict = sie_verdict::decode(verdict, &format!("{name}->verdict"))?;
+    let warm = WarmStart::from_fit(
         &sigma[..histogram_count as usize],
         penalty,
         noise_shape,
         inlier_fraction,
     )
-    .map_err(|message| FfiError::invalid(format!("{name}: {message}")))
+    .map_err(|message| FfiError::invalid(format!("{name}: {message}")))?;
+    let held = matches!(verdict, sie_verdict::Good | sie_verdict::None);
+    Ok(held.then_some(warm))
 }
 
 /// Reads `count` points of three `T`s, point i starting `i * stride_bytes` bytes after `ptr`

@@ -122,10 +122,13 @@ pub unsafe extern "C" fn sie_context_set_starts(ctx: *mut sie_context, starts: u
 /// converge, sigma more than doubled, the inlier fraction halved, or it travelled farther than
 /// the model could see) or its verdict is not GOOD, the registration runs as without a warm
 /// start, by itself
-/// (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). The values
-/// are copied; the setting stays until changed (call it after every frame). Ignored by
-/// baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:
-/// a baseline's summary) or values out of range.
+/// (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). A `previous`
+/// whose own verdict is DOUBTFUL or UNSUPPORTED clears the setting instead: the frame after it
+/// is rarely GOOD (the same loose scene or bad guess again), and its warm run would be paid for
+/// and dropped (SIE_VERDICT_NONE, a summary filled by hand, is taken as given).
+/// The values are copied; the setting stays until changed (call it after every frame). Ignored
+/// by baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:
+/// a baseline's summary), an unknown verdict, or values out of range.
 ///
 /// # Safety
 /// `ctx` is NULL or a live context; `previous` is NULL or valid for reading one `sie_summary`.
@@ -141,7 +144,7 @@ pub unsafe extern "C" fn sie_context_set_warm_start(
                 None
             } else {
                 // SAFETY: non-NULL, and readable per the contract.
-                Some(read_warm_start(previous, "previous")?)
+                read_warm_start(previous, "previous")?
             };
             Ok(())
         })

@@ -83,7 +83,8 @@ pub struct RegistrationConfig {
     /// the model's width); when it ends without the model holding (not converged, no inlier
     /// peak, σ more than doubled, the inlier fraction halved, or it travelled beyond the
     /// model's reach: the guess was bad) or with a verdict that is not GOOD, the registration
-    /// runs as without it (`starts`). Ignored when `initial_beta` is set.
+    /// runs as without it (`starts`). Ignored when `initial_beta` is set. `WarmStart::of` gives
+    /// none for a result that is not GOOD: the next frame runs cold.
     pub warm_start: Option<WarmStart>,
     /// β ← shrink·β after each convergence (§4.3: 0.5).
     pub beta_shrink: f64,

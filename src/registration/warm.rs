@@ -14,9 +14,13 @@ use crate::sie::schedule::WARM_BETA_WIDTHS;
 
 impl WarmStart {
     /// The noise model a registration ended with, to start the next one from (`None` for a
-    /// baseline cost or a result without a usable σ).
+    /// baseline cost, a result without a usable σ, or one not GOOD).
+    ///
+    /// A warm run is kept only when its result is GOOD (`run_warm`), and a frame after one that
+    /// was not GOOD rarely is: the same loose scene or the same bad guess again, so its warm
+    /// run would be paid for and then dropped for the cold search. Such a frame runs cold.
     pub fn of(result: &RegistrationResult) -> Option<WarmStart> {
-        if result.beta.is_empty() {
+        if result.beta.is_empty() || result.quality.verdict != Verdict::Good {
             return None;
         }
         Self::from_fit(

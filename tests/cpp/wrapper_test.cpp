@@ -504,6 +504,13 @@ void test_starts_and_verdicts(const Clouds &clouds) {
     context.clear_warm_start();
     context.align(clouds.source, clouds.target, cold);
     CHECK(context.summary().start != sie::StartKind::WarmStart);
+    // A summary that is not GOOD clears the warm start: its successor runs cold.
+    CHECK(cold_summary.verdict == sie::Verdict::Good);
+    sie::Summary doubtful = cold_summary;
+    doubtful.verdict = sie::Verdict::Doubtful;
+    context.set_warm_start(doubtful);
+    context.align(clouds.source, clouds.target, cold);
+    CHECK(context.summary().start != sie::StartKind::WarmStart);
 
     // Pairs with no relation at all: nothing stands out from chance.
     scene::Random random(21);

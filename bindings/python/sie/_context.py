@@ -180,7 +180,9 @@ class Context:
         """Starts the following registrations from the noise model of `previous`, an earlier SIE
         registration's Summary (None: start cold again). For sequences registered from good
         guesses; falls back to the full search by itself when the guess was bad
-        (Summary.start is StartKind.WARM_START when the warm run was kept)."""
+        (Summary.start is StartKind.WARM_START when the warm run was kept). A Summary whose
+        verdict is DOUBTFUL or UNSUPPORTED clears it: the frame after one rarely is GOOD, and
+        its warm run would be paid for and dropped."""
         if previous is None:
             self._call(_lib.sie_context_set_warm_start, None)
             return self
@@ -191,6 +193,7 @@ class Context:
         raw.noise_shape = previous.noise_shape
         raw.inlier_fraction = previous.inlier_fraction
         raw.histogram_count = previous.histogram_count
+        raw.verdict = int(previous.verdict)
         self._call(_lib.sie_context_set_warm_start, ctypes.byref(raw))
         return self
 

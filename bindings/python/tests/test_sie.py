@@ -4,6 +4,7 @@ SIE_LIBRARY to the staged install)."""
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import os
 from pathlib import Path
 
@@ -750,6 +751,10 @@ def test_warm_start_from_a_previous_summary(clouds):
     rotation, translation = pose_error(warm.transform, TRUTH)
     assert rotation < 0.2 and translation < 0.004
     ctx.set_warm_start(None)
+    assert ctx.align(source, target, cold.transform).summary.start is not sie.StartKind.WARM_START
+    # A summary that is not GOOD clears the warm start: its successor runs cold.
+    assert cold.summary.verdict is sie.Verdict.GOOD
+    ctx.set_warm_start(dataclasses.replace(cold.summary, verdict=sie.Verdict.DOUBTFUL))
     assert ctx.align(source, target, cold.transform).summary.start is not sie.StartKind.WARM_START
     # A baseline's summary has no SIE model to start from.
     baseline = sie.Context().set_cost_function(sie.CostFunction.L2).align(source, target).summary

@@ -168,8 +168,17 @@ fn warm_start_is_read_from_a_summary_and_checked() {
         assert_eq!(warm_summary.starts_run, 1);
         assert!(warm_summary.iterations < summary.iterations);
 
-        // NULL clears it.
+        // NULL clears it, and so does a summary whose verdict is not GOOD (its successor
+        // runs cold).
+        assert_eq!(summary.verdict, sie_verdict::Good as u32);
         assert_eq!(sie_context_set_warm_start(ctx.0, null()), sie_status::Ok);
+        assert_eq!(ctx.config().warm_start, None);
+        assert_eq!(sie_context_set_warm_start(ctx.0, &summary), sie_status::Ok);
+        let doubtful = sie_summary {
+            verdict: sie_verdict::Doubtful as u32,
+            ..summary
+        };
+        assert_eq!(sie_context_set_warm_start(ctx.0, &doubtful), sie_status::Ok);
         assert_eq!(ctx.config().warm_start, None);
 
         // A baseline's summary, and out-of-range values, are refused and change nothing.
@@ -197,6 +206,19 @@ fn warm_start_is_read_from_a_summary_and_checked() {
             sie_status::InvalidArgument
         );
         assert!(ctx.last_error().contains("sigma"), "{}", ctx.last_error());
+        let unknown_verdict = sie_summary {
+            verdict: 9,
+            ..summary
+        };
+        assert_eq!(
+            sie_context_set_warm_start(ctx.0, &unknown_verdict),
+            sie_status::InvalidArgument
+        );
+        assert!(
+            ctx.last_error().contains("previous->verdict = 9"),
+            "{}",
+            ctx.last_error()
+        );
         let misaligned = (&summary as *const sie_summary)
             .cast::<u8>()
             .wrapping_add(1)
