@@ -922,7 +922,7 @@ sie_status sie_context_set_starts(struct sie_context *ctx, uint32_t starts);
  * start, by itself
  * (`sie_summary.start` is SIE_START_KIND_WARM_START when the warm run was kept). A `previous`
  * whose own verdict is DOUBTFUL or UNSUPPORTED clears the setting instead: the frame after it
- * is rarely GOOD (the same loose scene or bad guess again), and its warm run would be paid for
+ * rarely keeps its warm run (the same loose scene or bad guess again), which would be paid for
  * and dropped (SIE_VERDICT_NONE, a summary filled by hand, is taken as given).
  * The values are copied; the setting stays until changed (call it after every frame). Ignored
  * by baseline costs. INVALID_ARGUMENT when `previous` holds no SIE model (histogram_count 0:

@@ -16,9 +16,9 @@ impl WarmStart {
     /// The noise model a registration ended with, to start the next one from (`None` for a
     /// baseline cost, a result without a usable σ, or one not GOOD).
     ///
-    /// A warm run is kept only when its result is GOOD (`run_warm`), and a frame after one that
-    /// was not GOOD rarely is: the same loose scene or the same bad guess again, so its warm
-    /// run would be paid for and then dropped for the cold search. Such a frame runs cold.
+    /// A warm run is kept only when its result is GOOD (`run_warm`), and after a frame that was
+    /// not GOOD it rarely is (the same loose scene or the same bad guess again): the warm run
+    /// would be paid for and then dropped for the cold search. Such a frame runs cold.
     pub fn of(result: &RegistrationResult) -> Option<WarmStart> {
         if result.beta.is_empty() || result.quality.verdict != Verdict::Good {
             return None;

@@ -181,8 +181,9 @@ class Context:
         registration's Summary (None: start cold again). For sequences registered from good
         guesses; falls back to the full search by itself when the guess was bad
         (Summary.start is StartKind.WARM_START when the warm run was kept). A Summary whose
-        verdict is DOUBTFUL or UNSUPPORTED clears it: the frame after one rarely is GOOD, and
-        its warm run would be paid for and dropped."""
+        verdict is DOUBTFUL or UNSUPPORTED clears it: the frame after such a one rarely keeps
+        its warm run (the same loose scene or bad guess again), which would be paid for and
+        dropped."""
         if previous is None:
             self._call(_lib.sie_context_set_warm_start, None)
             return self
