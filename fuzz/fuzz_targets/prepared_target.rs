@@ -291,7 +291,7 @@ fuzz_target!(|data: &[u8]| {
                 },
                 "{previous:?}"
             );
-            warm_set = status == sie_status::Ok;
+            warm_set = status == sie_status::Ok && warm_start_taken(&previous);
         }
         if estimate {
             assert_eq!(sie_target_estimate_normals(handle, threads), sie_status::Ok);

@@ -1,8 +1,8 @@
 //! Where registrations start: `sie_context_set_starts`, `sie_context_set_regularizer` (a fixed
 //! initial beta is one run), initial guesses (rigid ones at any magnitude must be accepted,
 //! others refused) and `sie_context_set_warm_start` from a fuzzed summary (only its sigma,
-//! penalty, noise_shape, inlier_fraction and histogram_count are read; bad ones refused) or a
-//! real one; then clouds (`sie_context_register_d`, or onto a prepared target) or
+//! penalty, noise_shape, inlier_fraction, histogram_count and verdict are read; bad ones
+//! refused, a DOUBTFUL or UNSUPPORTED one clears the setting) or a real one; then clouds (`sie_context_register_d`, or onto a prepared target) or
 //! correspondences (`sie_context_register_correspondences_d`). The summary must report a
 //! search these settings allow.
 #![no_main]
@@ -14,10 +14,10 @@ use sie::ffi::*;
 mod common;
 use common::*;
 
-const SUMMARY_BYTES: usize = 52;
+const SUMMARY_BYTES: usize = 53;
 
 /// A summary with fuzzed number fields: raw bits, or values near the edges of their ranges.
-/// The fields the library must not read hold NaN.
+/// The fields the library must not read hold NaN (or the maximum of their type).
 fn summary_from(bytes: &[u8; SUMMARY_BYTES], raw: bool) -> sie_summary {
     let f = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap());
     let b = |k: usize| bytes[k];
@@ -33,7 +33,12 @@ fn summary_from(bytes: &[u8; SUMMARY_BYTES], raw: bool) -> sie_summary {
         source_count: u64::MAX,
         iterations: u32::MAX,
         stop_reason: u32::MAX,
-        verdict: u32::MAX,
+        // NONE, GOOD, DOUBTFUL, UNSUPPORTED, or a value that is none of them.
+        verdict: match bytes[52] % 6 {
+            v @ 0..=3 => u32::from(v),
+            4 => 4,
+            _ => u32::MAX,
+        },
         start: u32::MAX,
         converged: bytes[51] & 1 != 0,
         ..sie_summary::default()
@@ -256,7 +261,7 @@ fuzz_target!(|data: &[u8]| {
                     },
                     "{previous:?}"
                 );
-                warm_set = status == sie_status::Ok;
+                warm_set = status == sie_status::Ok && warm_start_taken(&previous);
             }
         }
         if warm & 1 != 0 {
@@ -265,7 +270,7 @@ fuzz_target!(|data: &[u8]| {
             let message = last_error(ctx);
             if warm_start_valid(&fuzzed) {
                 assert_eq!(status, sie_status::Ok, "{fuzzed:?}: {message}");
-                warm_set = true;
+                warm_set = warm_start_taken(&fuzzed);
             } else {
                 // Refused, saying why; a refused one leaves the previous setting.
                 assert_eq!(status, sie_status::InvalidArgument, "{fuzzed:?}");
@@ -277,6 +282,9 @@ fuzz_target!(|data: &[u8]| {
                 }
                 if message.contains("got NaN") {
                     assert!(read.clone().any(|v| v.is_nan()), "{fuzzed:?}: {message}");
+                }
+                if message.contains("verdict") {
+                    assert!(fuzzed.verdict > sie_verdict::Unsupported as u32, "{fuzzed:?}: {message}");
                 }
             }
         }

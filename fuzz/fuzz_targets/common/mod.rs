@@ -196,13 +196,20 @@ pub fn is_registration_error(status: sie_status) -> bool {
 /// Whether `sie_context_set_warm_start` must accept the summary: an SIE model in range.
 pub fn warm_start_valid(s: &sie_summary) -> bool {
     let n = s.histogram_count as usize;
-    (1..=3).contains(&n)
+    s.verdict <= sie_verdict::Unsupported as u32
+        && (1..=3).contains(&n)
         && s.sigma[..n].iter().all(|v| v.is_finite() && *v > 0.0)
         && s.penalty.is_finite()
         && s.penalty >= 1.0
         && s.noise_shape.is_finite()
         && s.noise_shape > 0.0
         && (0.0..=1.0).contains(&s.inlier_fraction)
+}
+
+/// Whether `sie_context_set_warm_start` keeps a valid summary as the warm start: a DOUBTFUL
+/// or UNSUPPORTED one clears the setting instead (NONE, filled by hand, is taken as given).
+pub fn warm_start_taken(s: &sie_summary) -> bool {
+    warm_start_valid(s) && (s.verdict == sie_verdict::None as u32 || s.verdict == sie_verdict::Good as u32)
 }
 
 /// What the settings of a registration let its summary say.
