@@ -284,7 +284,10 @@ fuzz_target!(|data: &[u8]| {
                     assert!(read.clone().any(|v| v.is_nan()), "{fuzzed:?}: {message}");
                 }
                 if message.contains("verdict") {
-                    assert!(fuzzed.verdict > sie_verdict::Unsupported as u32, "{fuzzed:?}: {message}");
+                    assert!(
+                        fuzzed.verdict > sie_verdict::Unsupported as u32,
+                        "{fuzzed:?}: {message}"
+                    );
                 }
             }
         }
