@@ -2,9 +2,10 @@
 //! initial beta is one run), initial guesses (rigid ones at any magnitude must be accepted,
 //! others refused) and `sie_context_set_warm_start` from a fuzzed summary (only its sigma,
 //! penalty, noise_shape, inlier_fraction, histogram_count and verdict are read; bad ones
-//! refused, a DOUBTFUL or UNSUPPORTED one clears the setting) or a real one; then clouds (`sie_context_register_d`, or onto a prepared target) or
-//! correspondences (`sie_context_register_correspondences_d`). The summary must report a
-//! search these settings allow.
+//! refused, a DOUBTFUL or UNSUPPORTED one clears the setting) or a real one; then clouds
+//! (`sie_context_register_d`, or onto a prepared target) or correspondences
+//! (`sie_context_register_correspondences_d`). The summary must report a search these settings
+//! allow.
 #![no_main]
 use std::ptr::null;
 

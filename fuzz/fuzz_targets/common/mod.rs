@@ -193,7 +193,8 @@ pub fn is_registration_error(status: sie_status) -> bool {
     )
 }
 
-/// Whether `sie_context_set_warm_start` must accept the summary: an SIE model in range.
+/// Whether `sie_context_set_warm_start` must accept the summary: an SIE model in range and a
+/// known verdict.
 pub fn warm_start_valid(s: &sie_summary) -> bool {
     let n = s.histogram_count as usize;
     s.verdict <= sie_verdict::Unsupported as u32
