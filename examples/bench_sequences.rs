@@ -4,7 +4,8 @@
 //! distance of each estimated position from the true one, every trajectory starting at the
 //! true first pose, without alignment) as CSV rows, in the same format as
 //! bench/sequences.py prints for small_gicp and KISS-ICP on the same frames (bench/sequences.sh
-//! runs all of them and the report).
+//! runs all of them and the report). sie runs cold, warm-started, through `Odometry`, and cold
+//! on each frame thinned to the map's voxels (the speed and drift that thinning buys).
 //!
 //! ```text
 //! bench_sequences write DIR [FRAMES] [N,N,...]   synthetic room trajectories (default 100 frames
@@ -29,7 +30,8 @@
 //! also hold their sweeps as `pcd/NNNN.pcd` (binary PCD, missing returns at 0 0 0 as drivers
 //! write them) and `poses_kitti.txt` (KITTI format: the top 3 rows of each T_world_sensor, 12
 //! numbers a line), for any other program to read the same frames.
-use std::collections::HashMap;
+use std::borrow::Cow;
+use std::collections::{HashMap, HashSet};
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -83,8 +85,12 @@ fn main() -> Result<(), String> {
                 for &t in &threads {
                     for mode in [Mode::PreviousFrame, Mode::Map] {
                         for start in [Start::Cold, Start::Warm] {
-                            println!("{}", run(&sequence, mode, t, start)?.csv());
+                            println!("{}", run(&sequence, mode, t, start, Source::Whole)?.csv());
                         }
+                        println!(
+                            "{}",
+                            run(&sequence, mode, t, Start::Cold, Source::MapVoxels)?.csv()
+                        );
                     }
                     println!("{}", run_odometry(&sequence, t)?.csv());
                 }
@@ -98,8 +104,9 @@ fn main() -> Result<(), String> {
             let result = (|| {
                 for sequence in read_sequences(&dir)? {
                     let rows = [
-                        run(&sequence, Mode::PreviousFrame, 1, Start::Cold)?,
-                        run(&sequence, Mode::Map, 1, Start::Warm)?,
+                        run(&sequence, Mode::PreviousFrame, 1, Start::Cold, Source::Whole)?,
+                        run(&sequence, Mode::Map, 1, Start::Warm, Source::Whole)?,
+                        run(&sequence, Mode::Map, 1, Start::Cold, Source::MapVoxels)?,
                         run_odometry(&sequence, 1)?,
                     ];
                     for row in rows {
@@ -142,6 +149,32 @@ impl Mode {
     }
 }
 
+/// Which of a frame's points are registered.
+#[derive(Clone, Copy, PartialEq)]
+pub enum Source {
+    /// Every point of the frame (the library's use as documented).
+    Whole,
+    /// One point per voxel of the map's size (the first in it, in the sensor's frame), thinned
+    /// in the timed loop: what KISS-ICP does to each frame, for the speed and drift it buys.
+    MapVoxels,
+}
+
+impl Source {
+    fn points(self, frame: &[Point], voxel: f64) -> Cow<'_, [Point]> {
+        match self {
+            Source::Whole => Cow::Borrowed(frame),
+            Source::MapVoxels => {
+                let mut occupied = HashSet::with_capacity(frame.len());
+                frame
+                    .iter()
+                    .filter(|p| occupied.insert(p.map(|c| (c / voxel).floor() as i64)))
+                    .copied()
+                    .collect()
+            }
+        }
+    }
+}
+
 /// Whether each registration starts from the previous one's noise model.
 #[derive(Clone, Copy, PartialEq)]
 pub enum Start {
@@ -156,6 +189,7 @@ pub enum Start {
 pub struct Row {
     sequence: String,
     start: Start,
+    source: Source,
     points: usize,
     frames: usize,
     threads: usize,
@@ -173,11 +207,15 @@ impl Row {
         // Frames registered: all but the first.
         let registered = self.frames.saturating_sub(1) as f64;
         format!(
-            "sie,SIE point-to-plane{},{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{:.3},{}",
+            "sie,SIE point-to-plane{}{},{},{},{},{},{},{:.4},{:.2},{:.3},{:.4},{:.3},{:.3},{}",
             match self.start {
                 Start::Cold => "",
                 Start::Warm => " warm start",
                 Start::Odometry => " (sie::Odometry)",
+            },
+            match self.source {
+                Source::Whole => "",
+                Source::MapVoxels => " on the map's voxels",
             },
             self.sequence,
             self.points,
@@ -196,7 +234,13 @@ impl Row {
 }
 
 /// Runs odometry over the sequence from the true first pose with a constant-velocity guess.
-pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Result<Row, String> {
+pub fn run(
+    sequence: &Sequence,
+    mode: Mode,
+    threads: usize,
+    start: Start,
+    source: Source,
+) -> Result<Row, String> {
     let mut config = RegistrationConfig {
         threads,
         noise: sequence.noise,
@@ -208,6 +252,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
     let mut velocity = Matrix4::identity(); // last frame-to-frame motion
     let mut iterations = 0u64;
     let mut starts = 0u64;
+    let mut registered_points = 0usize;
     let started = Instant::now();
     let mut map = VoxelMap::new(sequence.voxel);
     let mut target = match mode {
@@ -220,11 +265,12 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
     .map_err(|e| e.to_string())?;
     for i in 1..frames.len() {
         let previous = estimates[i - 1];
+        let points = source.points(&frames[i], sequence.voxel);
+        registered_points += points.len();
         let pose = match mode {
             Mode::PreviousFrame => {
-                let result =
-                    register_clouds_to(&frames[i], &target, Some(&velocity), &config, Hooks::default())
-                        .map_err(|e| format!("frame {i}: {e}"))?;
+                let result = register_clouds_to(&points, &target, Some(&velocity), &config, Hooks::default())
+                    .map_err(|e| format!("frame {i}: {e}"))?;
                 iterations += u64::from(result.iterations);
                 starts += u64::from(result.search.starts_run);
                 if start == Start::Warm {
@@ -235,7 +281,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
             }
             Mode::Map => {
                 let guess = previous * velocity;
-                let result = register_clouds_to(&frames[i], &target, Some(&guess), &config, Hooks::default())
+                let result = register_clouds_to(&points, &target, Some(&guess), &config, Hooks::default())
                     .map_err(|e| format!("frame {i}: {e}"))?;
                 iterations += u64::from(result.iterations);
                 starts += u64::from(result.search.starts_run);
@@ -261,6 +307,13 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
         iterations as f64 / registered as f64,
         starts as f64 / registered as f64
     );
+    if source == Source::MapVoxels {
+        note += &format!(
+            "; {} points/frame registered (one per {} m voxel)",
+            registered_points / registered as usize,
+            sequence.voxel
+        );
+    }
     if mode == Mode::Map {
         note += &format!(
             "; map {} points at {} m voxels; keyframe every {KEYFRAME_INTERVAL}",
@@ -271,6 +324,7 @@ pub fn run(sequence: &Sequence, mode: Mode, threads: usize, start: Start) -> Res
     Ok(Row {
         sequence: sequence.name.clone(),
         start,
+        source,
         points: frames.iter().map(Vec::len).sum::<usize>() / frames.len(),
         frames: frames.len(),
         threads,
@@ -331,6 +385,7 @@ fn run_odometry(sequence: &Sequence, threads: usize) -> Result<Row, String> {
     Ok(Row {
         sequence: sequence.name.clone(),
         start: Start::Odometry,
+        source: Source::Whole,
         points: frames.iter().map(Vec::len).sum::<usize>() / frames.len(),
         frames: frames.len(),
         threads,

@@ -319,7 +319,7 @@ mod common;
 
 #[cfg(feature = "io")]
 mod kinect {
-    use super::bench_sequences::{Mode, Start, kinect_sequence, run};
+    use super::bench_sequences::{Mode, Source, Start, kinect_sequence, run};
     use super::common;
 
     /// The slambook Kinect frames 2..5 with a constant-velocity guess: the motion changes
@@ -332,8 +332,8 @@ mod kinect {
         let Some(dir) = common::data_dir() else { return };
         let sequence = kinect_sequence(&dir.join("slambook-joinmap-rgbd")).expect("Kinect frames");
         for mode in [Mode::PreviousFrame, Mode::Map] {
-            let cold = run(&sequence, mode, 1, Start::Cold).unwrap();
-            let warm = run(&sequence, mode, 1, Start::Warm).unwrap();
+            let cold = run(&sequence, mode, 1, Start::Cold, Source::Whole).unwrap();
+            let warm = run(&sequence, mode, 1, Start::Warm, Source::Whole).unwrap();
             println!("cold: {}\nwarm: {}", cold.csv(), warm.csv());
             assert!(cold.rpe_t_rmse_mm < 40.0, "{}", cold.csv());
             assert!(
