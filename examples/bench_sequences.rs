@@ -31,7 +31,7 @@
 //! write them) and `poses_kitti.txt` (KITTI format: the top 3 rows of each T_world_sensor, 12
 //! numbers a line), for any other program to read the same frames.
 use std::borrow::Cow;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -167,7 +167,7 @@ impl Source {
                 let mut occupied = HashSet::with_capacity(frame.len());
                 frame
                     .iter()
-                    .filter(|p| occupied.insert(p.map(|c| (c / voxel).floor() as i64)))
+                    .filter(|p| occupied.insert(voxel_of(p, voxel)))
                     .copied()
                     .collect()
             }
@@ -428,10 +428,15 @@ fn absolute_trajectory_error(truth: &[Matrix4<f64>], estimate: &[Matrix4<f64>]) 
     (squared / truth.len().max(1) as f64).sqrt()
 }
 
+/// The voxel of size `voxel` holding `p` (integer cell coordinates).
+fn voxel_of(p: &Point, voxel: f64) -> [i64; 3] {
+    p.map(|c| (c / voxel).floor() as i64)
+}
+
 /// Keyframe points in the world frame, one per voxel (the first that fell into it).
 struct VoxelMap {
     voxel: f64,
-    occupied: HashMap<[i64; 3], ()>,
+    occupied: HashSet<[i64; 3]>,
     points: Vec<Point>,
 }
 
@@ -439,7 +444,7 @@ impl VoxelMap {
     fn new(voxel: f64) -> Self {
         VoxelMap {
             voxel,
-            occupied: HashMap::new(),
+            occupied: HashSet::new(),
             points: Vec::new(),
         }
     }
@@ -447,8 +452,7 @@ impl VoxelMap {
     fn insert(&mut self, frame: &[Point], pose: &Matrix4<f64>) {
         for p in frame {
             let w = transform_point(pose, p);
-            let key = w.map(|c| (c / self.voxel).floor() as i64);
-            if self.occupied.insert(key, ()).is_none() {
+            if self.occupied.insert(voxel_of(&w, self.voxel)) {
                 self.points.push(w);
             }
         }
