@@ -6,8 +6,8 @@ fixed axes through its centroid; success is 2 degrees and 2 % of the target's di
 need a voxel size: they get the one sie's rule picks (about 2500 keypoints per cloud, never finer
 than the point spacing), the same scale sie's descriptors use. A program, not a test.
 
-    /tmp/venv31/bin/pip install open3d==0.20.0 kiss-matcher==1.0.2
-    /tmp/venv31/bin/python bench/global_peers.py [data dir]
+    python3 -m venv VENV && VENV/bin/pip install -r bench/requirements.txt
+    VENV/bin/python bench/global_peers.py [data dir]
 """
 import sys
 import time
@@ -37,6 +37,42 @@ def bunny_pose(folder, scan):
             pose[:3, 3] = [tx, ty, tz]
             return pose
     raise KeyError(scan)
+
+
+# Kinect intrinsics and depth scale of the slambook frames (data README); every 4th pixel in both
+# directions, as examples/common/slambook.rs reads them for bench_global.
+FX, FY, CX, CY, DEPTH_SCALE, DEPTH_STRIDE = 518.0, 519.0, 325.5, 253.5, 1000.0, 4
+
+
+def kinect_frames(folder):
+    """The frames' points (camera frame, metres) and T_world_camera poses."""
+    poses = []
+    for line in (folder / "pose.txt").read_text().splitlines():
+        if line.strip():
+            tx, ty, tz, qx, qy, qz, qw = map(float, line.split())
+            pose = np.eye(4)
+            pose[:3, :3] = o3d.geometry.get_rotation_matrix_from_quaternion([qw, qx, qy, qz])
+            pose[:3, 3] = [tx, ty, tz]
+            poses.append(pose)
+    frames = []
+    for i in range(1, len(poses) + 1):
+        data = (folder / "depth" / f"{i}.pgm").read_bytes()
+        tokens, pos = [], 0
+        while len(tokens) < 4:
+            while data[pos:pos + 1].isspace():
+                pos += 1
+            start = pos
+            while not data[pos:pos + 1].isspace():
+                pos += 1
+            tokens.append(data[start:pos])
+        width, height = int(tokens[1]), int(tokens[2])
+        depth = np.frombuffer(data[pos + 1:pos + 1 + 2 * width * height], dtype=">u2").reshape(height, width)
+        v, u = np.mgrid[0:height:DEPTH_STRIDE, 0:width:DEPTH_STRIDE]
+        d = depth[::DEPTH_STRIDE, ::DEPTH_STRIDE]
+        keep = d != 0
+        z = d[keep] / DEPTH_SCALE
+        frames.append(np.stack([(u[keep] - CX) * z / FX, (v[keep] - CY) * z / FY, z], axis=1))
+    return frames, poses
 
 
 def rotation(axis, degrees):
@@ -130,6 +166,10 @@ def main():
     lidar = data / "small_gicp-data"
     pairs.append(("LiDAR small_gicp", read(lidar / "source.ply"), read(lidar / "target.ply"),
                   np.loadtxt(lidar / "T_target_source.txt").reshape(4, 4)))
+    frames, poses = kinect_frames(data / "slambook-joinmap-rgbd")
+    for i in range(1, len(frames)):
+        pairs.append((f"Kinect frame {i + 1} -> {i}", frames[i], frames[i - 1],
+                      np.linalg.inv(poses[i - 1]) @ poses[i]))
     room = data / "pcl-data-room-scans"
     source, target = read(room / "room_scan2.pcd"), read(room / "room_scan1.pcd")
     guess = np.eye(4)

@@ -36,7 +36,10 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use nalgebra::{Matrix4, Quaternion, Translation3, UnitQuaternion};
+#[path = "common/slambook.rs"]
+mod slambook;
+
+use nalgebra::Matrix4;
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
 use sie::synthetic::lidar::{Scanner, drive};
 use sie::synthetic::{DepthCamera, depth_camera_trajectory, room_trajectory};
@@ -44,6 +47,7 @@ use sie::{
     FrameStatus, Hooks, NoiseModel, Odometry, Point, PrepareOptions, PreparedTarget, RegistrationConfig,
     WarmStart, register_clouds_to,
 };
+use slambook::{KinectFrames, read_kinect_frames};
 
 /// The map gets a keyframe every this many frames; its prepared target serves the frames between.
 const KEYFRAME_INTERVAL: usize = 5;
@@ -685,48 +689,16 @@ fn read_sequence(folder: &Path) -> Result<Sequence, String> {
     })
 }
 
-/// The slambook Kinect frames 2..5 (every `DEPTH_STRIDE`-th pixel) with their poses; see the
-/// data README and examples/experiments/scans.rs.
+/// The slambook Kinect frames 2..5 (every `DEPTH_STRIDE`-th pixel) with their poses
+/// (examples/common/slambook.rs).
 pub fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
-    // Intrinsics and depth scale from the data README (joinMap.cpp).
-    const FX: f64 = 518.0;
-    const FY: f64 = 519.0;
-    const CX: f64 = 325.5;
-    const CY: f64 = 253.5;
-    const DEPTH_SCALE: f64 = 1000.0;
-    let text = fs::read_to_string(folder.join("pose.txt")).map_err(|e| format!("pose.txt: {e}"))?;
-    let mut poses = Vec::new();
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .map(|f| f.parse::<f64>().map_err(|e| format!("pose.txt: {e}")))
-            .collect::<Result<_, _>>()?;
-        if v.len() != 7 {
-            return Err(format!("pose.txt: expected tx ty tz qx qy qz qw, got {line}"));
-        }
-        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[6], v[3], v[4], v[5]));
-        poses.push((Translation3::new(v[0], v[1], v[2]) * q).to_homogeneous());
-    }
+    let KinectFrames {
+        mut frames,
+        mut poses,
+    } = read_kinect_frames(folder, DEPTH_STRIDE)?;
     // Frame 1 -> 2 is a large motion with little overlap (the data README: median NN distance
     // 21 cm at the true poses) on which every library fails; drift is measured on 2..5.
-    let poses = poses.split_off(1);
-    let mut frames = Vec::new();
-    for i in 2..=poses.len() + 1 {
-        let path = folder.join("depth").join(format!("{i}.pgm"));
-        let bytes = fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let (width, height, pixels) = parse_pgm16(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-        let mut points = Vec::new();
-        for v in (0..height).step_by(DEPTH_STRIDE) {
-            for u in (0..width).step_by(DEPTH_STRIDE) {
-                let d = pixels[v * width + u];
-                if d != 0 {
-                    let z = f64::from(d) / DEPTH_SCALE;
-                    points.push([(u as f64 - CX) * z / FX, (v as f64 - CY) * z / FY, z]);
-                }
-            }
-        }
-        frames.push(points);
-    }
+    let (frames, poses) = (frames.split_off(1), poses.split_off(1));
     Ok(Sequence {
         name: "kinect-slambook-2to5".into(),
         frames,
@@ -734,42 +706,4 @@ pub fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
         voxel: 0.02,
         noise: NoiseModel::Constant,
     })
-}
-
-/// Binary 16-bit PGM (P5, big-endian): width, height, pixels. Comments in the header are not
-/// supported (the slambook frames have none; scans.rs has the full reader).
-fn parse_pgm16(bytes: &[u8]) -> Result<(usize, usize, Vec<u16>), String> {
-    let mut fields = Vec::new();
-    let mut pos = 0;
-    while fields.len() < 4 {
-        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
-            pos += 1;
-        }
-        let start = pos;
-        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
-            pos += 1;
-        }
-        if start == pos {
-            return Err("truncated PGM header".into());
-        }
-        fields.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
-    }
-    let number = |t: &str| {
-        t.parse::<usize>()
-            .map_err(|_| format!("bad PGM header value {t:?}"))
-    };
-    if fields[0] != "P5" || number(&fields[3])? < 256 {
-        return Err("not a 16-bit binary PGM".into());
-    }
-    let (width, height) = (number(&fields[1])?, number(&fields[2])?);
-    let raster = &bytes[pos + 1..];
-    if raster.len() < 2 * width * height {
-        return Err("truncated PGM raster".into());
-    }
-    let pixels = raster
-        .chunks_exact(2)
-        .take(width * height)
-        .map(|b| u16::from_be_bytes([b[0], b[1]]))
-        .collect();
-    Ok((width, height, pixels))
 }

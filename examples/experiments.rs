@@ -38,6 +38,8 @@ mod scan_table;
 mod scans;
 #[path = "experiments/simulation.rs"]
 mod simulation;
+#[path = "common/slambook.rs"]
+mod slambook;
 #[path = "experiments/variant_table.rs"]
 mod variant_table;
 #[path = "experiments/variants.rs"]

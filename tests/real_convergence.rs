@@ -12,6 +12,8 @@ mod common;
 mod scans;
 #[path = "../examples/experiments/simulation.rs"]
 mod simulation;
+#[path = "../examples/common/slambook.rs"]
+mod slambook;
 
 use common::data_dir;
 use sie::{Hooks, RegistrationResult, StopReason, Verdict, register_clouds};

@@ -14,6 +14,7 @@ use sie::nn::NearestNeighbours;
 use sie::{Metric, NoiseModel, Point};
 
 use crate::simulation::{Method, paper_methods};
+use crate::slambook::{KinectFrames, read_kinect_frames};
 
 /// A pair counts as overlapping when at least this share of the source (every 10th point)
 /// lies within `OVERLAP_DISTANCE` of the target under the ground truth.
@@ -28,13 +29,6 @@ pub const PERTURBED_STARTS: usize = 3;
 /// Stanford scans (30–40k points each, 23 pairs): matches sampled per iteration, as the paper
 /// did for its depth frames, to keep the 23 × 4 × 10 registrations to minutes.
 pub const BUNNY_CORRESPONDENCES: usize = 5000;
-
-/// Kinect intrinsics from the slambook README (joinMap.cpp): fx, fy, cx, cy, depth scale.
-const FX: f64 = 518.0;
-const FY: f64 = 519.0;
-const CX: f64 = 325.5;
-const CY: f64 = 253.5;
-const DEPTH_SCALE: f64 = 1000.0;
 
 /// Settings shared by the pairs of one data set.
 #[derive(Clone, Debug)]
@@ -390,26 +384,9 @@ fn room_settings() -> DatasetSettings {
 /// quadratic-in-depth noise scaling. GT: T_i_j = T_world_i⁻¹ · T_world_j with
 /// T_world_cam = [R(q) | t] from pose.txt.
 pub fn depth_pairs(data: &Path) -> Result<Vec<PairCase>, String> {
-    let folder = data.join("slambook-joinmap-rgbd");
-    let text = fs::read_to_string(folder.join("pose.txt")).map_err(|e| format!("pose.txt: {e}"))?;
-    let mut poses = Vec::new();
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .map(|f| f.parse::<f64>())
-            .collect::<Result<_, _>>()
-            .map_err(|e| format!("pose.txt: {line}: {e}"))?;
-        if v.len() != 7 {
-            return Err(format!("pose.txt: expected 7 numbers, got {line}"));
-        }
-        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[6], v[3], v[4], v[5]));
-        poses.push((Translation3::new(v[0], v[1], v[2]) * q).to_homogeneous());
-    }
-    let mut frames = Vec::new();
-    for i in 1..=poses.len() {
-        let path = folder.join("depth").join(format!("{i}.pgm"));
-        frames.push(Arc::new(depth_to_points(&path)?));
-    }
+    let KinectFrames { frames, poses } =
+        read_kinect_frames(&data.join("slambook-joinmap-rgbd"), DEPTH_STRIDE)?;
+    let frames: Vec<Arc<Vec<Point>>> = frames.into_iter().map(Arc::new).collect();
     let mut cases = Vec::new();
     for noise in [NoiseModel::Constant, NoiseModel::QuadraticDepth] {
         for i in 0..frames.len() - 1 {
@@ -436,89 +413,6 @@ pub fn depth_pairs(data: &Path) -> Result<Vec<PairCase>, String> {
 fn sie_median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     values[values.len() / 2]
-}
-
-/// Back-projects every `DEPTH_STRIDE`-th pixel of a depth frame (0 = no depth).
-fn depth_to_points(path: &Path) -> Result<Vec<Point>, String> {
-    let bytes = fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let image = parse_pgm16(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut points = Vec::new();
-    for v in (0..image.height).step_by(DEPTH_STRIDE) {
-        for u in (0..image.width).step_by(DEPTH_STRIDE) {
-            let d = image.pixels[v * image.width + u];
-            if d == 0 {
-                continue;
-            }
-            let z = d as f64 / DEPTH_SCALE;
-            points.push([(u as f64 - CX) * z / FX, (v as f64 - CY) * z / FY, z]);
-        }
-    }
-    Ok(points)
-}
-
-/// A 16-bit grey image.
-pub struct Gray16 {
-    pub width: usize,
-    pub height: usize,
-    pub pixels: Vec<u16>,
-}
-
-/// Binary PGM (P5) with maxval > 255: two big-endian bytes per pixel (Netpbm spec). A header
-/// of four whitespace-separated tokens (comments from `#` to the end of a line), then one
-/// whitespace byte, then the raster. Written here rather than pulling in an image crate for
-/// 25 lines; 8-bit PGM is not needed by any data set.
-pub fn parse_pgm16(bytes: &[u8]) -> Result<Gray16, String> {
-    let mut pos = 0;
-    let mut tokens = Vec::new();
-    while tokens.len() < 4 {
-        while pos < bytes.len() && (bytes[pos].is_ascii_whitespace() || bytes[pos] == b'#') {
-            if bytes[pos] == b'#' {
-                while pos < bytes.len() && bytes[pos] != b'\n' {
-                    pos += 1;
-                }
-            } else {
-                pos += 1;
-            }
-        }
-        let start = pos;
-        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
-            pos += 1;
-        }
-        if start == pos {
-            return Err("truncated PGM header".into());
-        }
-        tokens.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
-    }
-    if tokens[0] != "P5" {
-        return Err(format!("not a binary PGM (magic {:?})", tokens[0]));
-    }
-    let number = |t: &str| {
-        t.parse::<usize>()
-            .map_err(|_| format!("bad PGM header value {t:?}"))
-    };
-    let (width, height, maxval) = (number(&tokens[1])?, number(&tokens[2])?, number(&tokens[3])?);
-    if !(256..=65535).contains(&maxval) {
-        return Err(format!(
-            "expected a 16-bit PGM (maxval 256..65535), got maxval {maxval}"
-        ));
-    }
-    pos += 1; // the single whitespace byte after maxval
-    let needed = width * height * 2;
-    let raster = bytes.get(pos..pos + needed).ok_or_else(|| {
-        format!(
-            "raster has {} bytes, {width}×{height} needs {needed}",
-            bytes.len().saturating_sub(pos)
-        )
-    })?;
-    let pixels = raster
-        .chunks_exact(2)
-        .map(|b| u16::from_be_bytes([b[0], b[1]]))
-        .collect();
-    Ok(Gray16 {
-        width,
-        height,
-        pixels,
-    })
 }
 
 /// One registration of the scan table.
