@@ -18,9 +18,6 @@ use sie::{Hooks, Point, RegistrationConfig, Starts, Verdict, register_clouds};
 #[path = "common/slambook.rs"]
 mod slambook;
 
-/// Every 4th depth pixel in both directions (about 12 000 points a frame), as the scan table.
-const DEPTH_STRIDE: usize = 4;
-
 /// The turns of the source about its centroid, and their axes (arbitrary, fixed so that
 /// bench/global_peers.py turns the same way).
 const TURNS: [(f64, [f64; 3]); 4] = [
@@ -146,8 +143,7 @@ fn pairs(dir: &Path) -> Vec<Pair> {
     });
     // Consecutive Kinect frames, each into the one before (frame 2 into 1: a large motion with
     // little overlap, the data README).
-    let kinect = slambook::read_kinect_frames(&dir.join("slambook-joinmap-rgbd"), DEPTH_STRIDE)
-        .expect("Kinect frames");
+    let kinect = slambook::read_kinect_frames(&dir.join("slambook-joinmap-rgbd")).expect("Kinect frames");
     for i in 1..kinect.frames.len() {
         pairs.push(Pair {
             name: format!("Kinect frame {} -> {}", i + 1, i),

@@ -53,8 +53,6 @@ use slambook::{KinectFrames, read_kinect_frames};
 const KEYFRAME_INTERVAL: usize = 5;
 /// Range noise of the synthetic scanner (m).
 const RANGE_NOISE: f64 = 0.01;
-/// Every this many pixels of a Kinect depth frame in each direction (as the scans table).
-const DEPTH_STRIDE: usize = 4;
 
 pub const HEADER: &str = "library,method,sequence,points,frames,threads,mode,seconds,fps,rpe_t_rmse_mm,rpe_r_rmse_deg,rpe_t_max_mm,ate_t_rmse_mm,note";
 
@@ -689,13 +687,13 @@ fn read_sequence(folder: &Path) -> Result<Sequence, String> {
     })
 }
 
-/// The slambook Kinect frames 2..5 (every `DEPTH_STRIDE`-th pixel) with their poses
+/// The slambook Kinect frames 2..5 with their poses
 /// (examples/common/slambook.rs).
 pub fn kinect_sequence(folder: &Path) -> Result<Sequence, String> {
     let KinectFrames {
         mut frames,
         mut poses,
-    } = read_kinect_frames(folder, DEPTH_STRIDE)?;
+    } = read_kinect_frames(folder)?;
     // Frame 1 -> 2 is a large motion with little overlap (the data README: median NN distance
     // 21 cm at the true poses) on which every library fails; drift is measured on 2..5.
     let (frames, poses) = (frames.split_off(1), poses.split_off(1));

@@ -13,18 +13,20 @@ const FY: f64 = 519.0;
 const CX: f64 = 325.5;
 const CY: f64 = 253.5;
 const DEPTH_SCALE: f64 = 1000.0;
+/// Every 4th pixel in both directions: about 13 000 points a frame, what every program reads.
+const STRIDE: usize = 4;
 
 /// The frames in file order (`depth/1.pgm` first) and their camera poses.
 pub struct KinectFrames {
-    /// Every `stride`-th pixel with a depth, in the camera frame (metres).
+    /// Every [`STRIDE`]-th pixel with a depth, in the camera frame (metres).
     pub frames: Vec<Vec<Point>>,
     /// T_world_camera of each frame (`pose.txt`: `p_world = R(q)·p_cam + t`).
     pub poses: Vec<Matrix4<f64>>,
 }
 
-/// Reads `pose.txt` and one `depth/N.pgm` per pose, keeping every `stride`-th pixel in both
+/// Reads `pose.txt` and one `depth/N.pgm` per pose, keeping every [`STRIDE`]-th pixel in both
 /// directions (0 = no depth, left out).
-pub fn read_kinect_frames(folder: &Path, stride: usize) -> Result<KinectFrames, String> {
+pub fn read_kinect_frames(folder: &Path) -> Result<KinectFrames, String> {
     let text = fs::read_to_string(folder.join("pose.txt")).map_err(|e| format!("pose.txt: {e}"))?;
     let mut poses = Vec::new();
     for line in text.lines().filter(|l| !l.trim().is_empty()) {
@@ -43,16 +45,16 @@ pub fn read_kinect_frames(folder: &Path, stride: usize) -> Result<KinectFrames, 
             let path = folder.join("depth").join(format!("{i}.pgm"));
             let bytes = fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
             let image = parse_pgm16(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-            Ok(back_project(&image, stride))
+            Ok(back_project(&image))
         })
         .collect::<Result<_, String>>()?;
     Ok(KinectFrames { frames, poses })
 }
 
-fn back_project(image: &Gray16, stride: usize) -> Vec<Point> {
+fn back_project(image: &Gray16) -> Vec<Point> {
     let mut points = Vec::new();
-    for v in (0..image.height).step_by(stride) {
-        for u in (0..image.width).step_by(stride) {
+    for v in (0..image.height).step_by(STRIDE) {
+        for u in (0..image.width).step_by(STRIDE) {
             let d = image.pixels[v * image.width + u];
             if d != 0 {
                 let z = f64::from(d) / DEPTH_SCALE;

@@ -20,8 +20,6 @@ use crate::slambook::{KinectFrames, read_kinect_frames};
 /// lies within `OVERLAP_DISTANCE` of the target under the ground truth.
 pub const MIN_OVERLAP: f64 = 0.2;
 pub const OVERLAP_DISTANCE: f64 = 0.001;
-/// Depth frames: every 4th pixel in both directions (about 12 000 points per frame).
-pub const DEPTH_STRIDE: usize = 4;
 /// The paper's TUM setting: 2000 randomly sampled nearest-neighbour matches per iteration.
 pub const DEPTH_CORRESPONDENCES: usize = 2000;
 /// Perturbed starts per pair.
@@ -384,8 +382,7 @@ fn room_settings() -> DatasetSettings {
 /// quadratic-in-depth noise scaling. GT: T_i_j = T_world_i⁻¹ · T_world_j with
 /// T_world_cam = [R(q) | t] from pose.txt.
 pub fn depth_pairs(data: &Path) -> Result<Vec<PairCase>, String> {
-    let KinectFrames { frames, poses } =
-        read_kinect_frames(&data.join("slambook-joinmap-rgbd"), DEPTH_STRIDE)?;
+    let KinectFrames { frames, poses } = read_kinect_frames(&data.join("slambook-joinmap-rgbd"))?;
     let frames: Vec<Arc<Vec<Point>>> = frames.into_iter().map(Arc::new).collect();
     let mut cases = Vec::new();
     for noise in [NoiseModel::Constant, NoiseModel::QuadraticDepth] {
