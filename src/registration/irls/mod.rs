@@ -7,6 +7,7 @@ mod per_point;
 mod plan;
 mod weighting;
 
+use std::ops::ControlFlow;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
@@ -134,15 +135,61 @@ pub(crate) fn run_pending(
     observer: Option<&mut Observer<'_>>,
 ) -> (RegistrationResult, PendingPerPoint) {
     let mut state = RunState::new(problem, plan);
-    let end = iterate(problem, init, first_iteration, plan, &mut state, observer);
+    let end = iterate(problem, init, first_iteration, plan, &mut state, observer, None);
     report(problem, end, state)
+}
+
+/// Asked before each update of SIE's final round, at the pose reached, whether the run is
+/// worth going on (`ControlFlow::Break`: not).
+pub(crate) type FinalRoundGate<'a> = dyn FnMut(&mut dyn Problem, &Matrix4<f64>) -> ControlFlow<()> + 'a;
+
+/// How a run with a [`FinalRoundGate`] ended.
+pub(crate) enum GatedRun {
+    /// As [`run_pending`] (boxed: the result is large).
+    Finished(Box<RegistrationResult>, PendingPerPoint),
+    /// The gate stopped it in its final round.
+    Dropped {
+        /// The number of the last update made.
+        iterations: u32,
+        /// The updates made, when the plan records them.
+        trace: Vec<TraceEntry>,
+    },
+}
+
+/// [`run_pending`], with `gate` asked before each update of the final round whether to go on.
+pub(crate) fn run_pending_gated(
+    problem: &mut dyn Problem,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    plan: &RunPlan,
+    observer: Option<&mut Observer<'_>>,
+    gate: &mut FinalRoundGate<'_>,
+) -> GatedRun {
+    let mut state = RunState::new(problem, plan);
+    let end = iterate(
+        problem,
+        init,
+        first_iteration,
+        plan,
+        &mut state,
+        observer,
+        Some(gate),
+    );
+    if end.dropped {
+        return GatedRun::Dropped {
+            iterations: end.iterations,
+            trace: end.trace,
+        };
+    }
+    let (result, pending) = report(problem, end, state);
+    GatedRun::Finished(Box::new(result), pending)
 }
 
 /// The updates of `plan` from `init` without the report (no final evaluation, no per-point
 /// results): where a run leads, for screening a start before paying for a full run.
 pub(crate) fn settle(problem: &mut dyn Problem, init: Matrix4<f64>, plan: &RunPlan) -> Matrix4<f64> {
     let mut state = RunState::new(problem, plan);
-    iterate(problem, init, 1, plan, &mut state, None).transform
+    iterate(problem, init, 1, plan, &mut state, None, None).transform
 }
 
 impl RunState {
@@ -171,6 +218,8 @@ struct LoopEnd {
     /// Of the last solve (`geometry::Solve::conditioning`).
     conditioning: f64,
     trace: Vec<TraceEntry>,
+    /// The final-round gate stopped the run.
+    dropped: bool,
 }
 
 /// Wall time since the last lap, added to a stage.
@@ -184,7 +233,8 @@ impl Laps {
     }
 }
 
-/// The updates: match, weigh, solve, until the plan's stop rule or the cost's convergence.
+/// The updates: match, weigh, solve, until the plan's stop rule or the cost's convergence, or
+/// until `gate` stops the run in its final round.
 fn iterate(
     problem: &mut dyn Problem,
     init: Matrix4<f64>,
@@ -192,6 +242,7 @@ fn iterate(
     plan: &RunPlan,
     state: &mut RunState,
     mut observer: Option<&mut Observer<'_>>,
+    mut gate: Option<&mut FinalRoundGate<'_>>,
 ) -> LoopEnd {
     let RunState {
         weighting,
@@ -220,7 +271,16 @@ fn iterate(
     // few rows most of the weight) or after MEDIUM_SUBSET_UPDATES updates without settling.
     let mut medium_subset_refused = false;
     let mut medium_subset_updates = 0;
+    let mut dropped = false;
     for iteration in first_iteration..first_iteration.saturating_add(stop_rule.max_updates) {
+        if iteration > first_iteration && !weighting.annealing() {
+            if let Some(worth_going_on) = gate.as_mut() {
+                dropped = worth_going_on(&mut *problem, &transform).is_break();
+                if dropped {
+                    break;
+                }
+            }
+        }
         laps.lap(&mut 0.0);
         let searching = weighting.annealing() || travelling;
         let points = match plan.matching {
@@ -338,6 +398,7 @@ fn iterate(
         iterations,
         conditioning,
         trace,
+        dropped,
     }
 }
 

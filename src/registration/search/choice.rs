@@ -305,10 +305,16 @@ impl BestOfStarts {
 
     /// Counts a start that is no rival to the best (`half_turns`): its updates are numbered
     /// and traced, its pose is not compared.
-    pub(crate) fn pass_over(&mut self, mut result: RegistrationResult) {
+    pub(crate) fn pass_over(&mut self, result: RegistrationResult) {
+        self.pass_over_unfinished(result.iterations, result.trace);
+    }
+
+    /// As `pass_over`, for a run stopped before its report: its last update's number and its
+    /// trace.
+    pub(crate) fn pass_over_unfinished(&mut self, iterations: u32, mut trace: Vec<TraceEntry>) {
         self.starts_run += 1;
-        self.next_iteration = result.iterations + 1;
-        self.trace.append(&mut result.trace);
+        self.next_iteration = iterations + 1;
+        self.trace.append(&mut trace);
     }
 
     /// Drops the best result's per-point results before another start runs (`finish`

@@ -12,15 +12,17 @@
 //! docs/performance.md ("Design measurements behind the code") has what each start wins on the
 //! real scans.
 
+use std::ops::ControlFlow;
+
 use nalgebra::{Matrix4, Translation3};
 
 use super::choice::BestOfStarts;
-use super::half_turns::{QuarterTurns, SETTLE_UPDATES, TurnedRivals};
+use super::half_turns::{QuarterTurns, RivalProgress, SETTLE_UPDATES, TurnedRivals};
 use super::period_shifts::period_shifts;
 use super::quarter_turns::QUARTER_TURN_REACH;
 use super::scaled_source::fit_scaled;
 use crate::registration::hooks::Observer;
-use crate::registration::irls::{PendingPerPoint, RunPlan, run_pending, settle};
+use crate::registration::irls::{GatedRun, PendingPerPoint, RunPlan, run_pending, run_pending_gated, settle};
 use crate::registration::problem::{CloudProblem, Problem, moved_apart};
 use crate::registration::result::{RegistrationResult, StartKind, StopReason};
 use crate::registration::verdict::{Evidence, mean_squared_norm};
@@ -318,8 +320,9 @@ fn rerun_from_best(
 /// [`QUARTER_TURN_REACH`] of the target's spread from the caller's guess `init`, its quarter
 /// turns (`quarter_turns`; one that settles back within [`REACHED_SIGMAS`] of the best is the
 /// best's own basin, not run; a plane's result, doubted for the directions it leaves free,
-/// would only trade one free pose for a tied other). Then a fit that scales the source
-/// (`scaled_source`) challenges the best.
+/// would only trade one free pose for a tied other). A rival far behind the best that stops
+/// gaining on it in its final round is stopped there (`RivalProgress`). Then a fit that scales
+/// the source (`scaled_source`) challenges the best.
 pub(crate) fn challenge_with_rivals(
     problem: &mut CloudProblem<'_>,
     best: &mut BestOfStarts,
@@ -367,8 +370,31 @@ pub(crate) fn challenge_with_rivals(
         }
         let own = *best_inliers.get_or_insert_with(|| turns.inliers_at(problem, &transform, sigma));
         best.park();
-        let (result, pending) =
-            run_on_clouds(problem, rival, best.next_iteration, plan, observer.as_deref_mut());
+        let mut progress = RivalProgress::new(own, sigma);
+        let mut worth_going_on = |problem: &mut dyn Problem, pose: &Matrix4<f64>| {
+            if progress.worth_going_on(problem, pose) {
+                ControlFlow::Continue(())
+            } else {
+                ControlFlow::Break(())
+            }
+        };
+        let before = problem.setup_time();
+        let run = run_pending_gated(
+            problem,
+            rival,
+            best.next_iteration,
+            plan,
+            observer.as_deref_mut(),
+            &mut worth_going_on,
+        );
+        let (mut result, pending) = match run {
+            GatedRun::Finished(result, pending) => (*result, pending),
+            GatedRun::Dropped { iterations, trace } => {
+                best.pass_over_unfinished(iterations, trace);
+                continue;
+            }
+        };
+        problem.setup_time().complete(&before, &mut result.times);
         // The rows are the rival's final evaluation: every row, as `own` counted.
         if result.stop_reason != StopReason::Cancelled && !turns.nearly_as_good(problem, sigma, own) {
             best.pass_over(result);
