@@ -12,8 +12,6 @@
 //! docs/performance.md ("Design measurements behind the code") has what each start wins on the
 //! real scans.
 
-use std::ops::ControlFlow;
-
 use nalgebra::{Matrix4, Translation3};
 
 use super::choice::BestOfStarts;
@@ -22,7 +20,9 @@ use super::period_shifts::period_shifts;
 use super::quarter_turns::QUARTER_TURN_REACH;
 use super::scaled_source::fit_scaled;
 use crate::registration::hooks::Observer;
-use crate::registration::irls::{GatedRun, PendingPerPoint, RunPlan, run_pending, run_pending_gated, settle};
+use crate::registration::irls::{
+    FinalRoundGate, GatedRun, PendingPerPoint, RunPlan, run_pending, run_pending_gated, settle,
+};
 use crate::registration::problem::{CloudProblem, Problem, moved_apart};
 use crate::registration::result::{RegistrationResult, StartKind, StopReason};
 use crate::registration::verdict::{Evidence, mean_squared_norm};
@@ -86,6 +86,24 @@ pub(crate) fn run_on_clouds(
     let (mut result, pending) = run_pending(problem, init, first_iteration, plan, observer);
     problem.setup_time().complete(&before, &mut result.times);
     (result, pending)
+}
+
+/// [`run_on_clouds`] with `gate` asked before each final-round update whether to go on
+/// (`irls::run_pending_gated`).
+fn run_on_clouds_gated(
+    problem: &mut CloudProblem<'_>,
+    init: Matrix4<f64>,
+    first_iteration: u32,
+    plan: &RunPlan,
+    observer: Option<&mut Observer<'_>>,
+    gate: &mut FinalRoundGate<'_>,
+) -> GatedRun {
+    let before = problem.setup_time();
+    let mut run = run_pending_gated(problem, init, first_iteration, plan, observer, gate);
+    if let GatedRun::Finished(result, _) = &mut run {
+        problem.setup_time().complete(&before, &mut result.times);
+    }
+    run
 }
 
 /// ICP from the initial guess by each of [`CLOUD_STARTS`], each with its own plan; the most
@@ -371,30 +389,21 @@ pub(crate) fn challenge_with_rivals(
         let own = *best_inliers.get_or_insert_with(|| turns.inliers_at(problem, &transform, sigma));
         best.park();
         let mut progress = RivalProgress::new(own, sigma);
-        let mut worth_going_on = |problem: &mut dyn Problem, pose: &Matrix4<f64>| {
-            if progress.worth_going_on(problem, pose) {
-                ControlFlow::Continue(())
-            } else {
-                ControlFlow::Break(())
-            }
-        };
-        let before = problem.setup_time();
-        let run = run_pending_gated(
+        let run = run_on_clouds_gated(
             problem,
             rival,
             best.next_iteration,
             plan,
             observer.as_deref_mut(),
-            &mut worth_going_on,
+            &mut |problem, pose| progress.worth_going_on(problem, pose),
         );
-        let (mut result, pending) = match run {
+        let (result, pending) = match run {
             GatedRun::Finished(result, pending) => (*result, pending),
             GatedRun::Dropped { iterations, trace } => {
                 best.pass_over_unfinished(iterations, trace);
                 continue;
             }
         };
-        problem.setup_time().complete(&before, &mut result.times);
         // The rows are the rival's final evaluation: every row, as `own` counted.
         if result.stop_reason != StopReason::Cancelled && !turns.nearly_as_good(problem, sigma, own) {
             best.pass_over(result);

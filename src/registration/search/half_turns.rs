@@ -9,6 +9,8 @@
 //! screens and count judge the result's quarter turns (`quarter_turns`, settled without the
 //! first screen) and period shifts (`period_shifts`).
 
+use std::ops::ControlFlow;
+
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::quarter_turns::quarter_turns;
@@ -117,16 +119,11 @@ impl TurnedRivals {
     /// the problem's rows there.
     pub(crate) fn inliers_at(
         &self,
-        problem: &mut dyn Problem,
+        problem: &mut CloudProblem<'_>,
         transform: &Matrix4<f64>,
         sigma: f64,
     ) -> usize {
-        let cols = problem.cols();
-        inliers_within(
-            problem.evaluate_all(transform),
-            cols,
-            inlier_radius_squared(sigma, cols),
-        )
+        inliers_at(problem, transform, sigma)
     }
 
     /// Whether the problem's rows (a refined half turn's final evaluation) explain the data
@@ -155,6 +152,17 @@ impl TurnedRivals {
 }
 
 /// Rows whose normalised squared residual is at most `radius_squared`.
+/// The rows within the inlier radius of σ = `sigma` among every row of the final evaluation at
+/// `transform`. Leaves the problem's rows there.
+fn inliers_at(problem: &mut dyn Problem, transform: &Matrix4<f64>, sigma: f64) -> usize {
+    let cols = problem.cols();
+    inliers_within(
+        problem.evaluate_all(transform),
+        cols,
+        inlier_radius_squared(sigma, cols),
+    )
+}
+
 fn inliers_within(rows: &Rows, cols: usize, radius_squared: f64) -> usize {
     rows.residual
         .chunks_exact(cols)
@@ -194,22 +202,21 @@ impl RivalProgress {
         }
     }
 
-    /// Asked before each final-round update at the pose reached: counts the inliers every
-    /// [`PROGRESS_PERIOD`] updates (which leaves the problem's rows there) and says whether the
-    /// rival is worth going on.
-    pub(crate) fn worth_going_on(&mut self, problem: &mut dyn Problem, pose: &Matrix4<f64>) -> bool {
+    /// The final-round gate of a rival (`irls::FinalRoundGate`), asked before each update at
+    /// the pose reached: counts the inliers every [`PROGRESS_PERIOD`] updates (which leaves the
+    /// problem's rows there) and stops a rival far behind that stopped gaining.
+    pub(crate) fn worth_going_on(
+        &mut self,
+        problem: &mut dyn Problem,
+        pose: &Matrix4<f64>,
+    ) -> ControlFlow<()> {
         let due = self.updates % PROGRESS_PERIOD == 0;
         self.updates += 1;
-        if !due {
-            return true;
+        if !due || self.gaining_or_near(inliers_at(problem, pose, self.sigma)) {
+            ControlFlow::Continue(())
+        } else {
+            ControlFlow::Break(())
         }
-        let cols = problem.cols();
-        let count = inliers_within(
-            problem.evaluate_all(pose),
-            cols,
-            inlier_radius_squared(self.sigma, cols),
-        );
-        self.gaining_or_near(count)
     }
 
     /// Whether a rival whose count is now `count` is near the result or still gaining on it
