@@ -4,7 +4,7 @@
 //! through its centroid (bench/global_peers.py runs the peers on the same cases). Prints a table: rotation and translation error against the ground
 //! truth, success (2° and 2 % of the target's diagonal), verdict, time. A program, not a test.
 //!
-//! `cargo run --release --example bench_global -- [data dir] [threads]`
+//! `cargo run --release --example bench_global -- [data dir] [threads] [pair name filter]`
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -42,7 +42,11 @@ fn main() {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
     let threads: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(0);
-    let pairs = pairs(&dir);
+    let name_filter = args.next().unwrap_or_default();
+    let pairs: Vec<Pair> = pairs(&dir)
+        .into_iter()
+        .filter(|pair| pair.name.contains(&name_filter))
+        .collect();
     let config = RegistrationConfig {
         starts: Starts::Global,
         threads,

@@ -1,6 +1,7 @@
 //! ICP with no initial guess to trust (`Starts::Global`): SIE from the most significant pose the
 //! descriptor matches propose (`feature_poses`); the other proposals and the initial guess are
-//! settled by a few updates and screened against it, and those that could rival it (half its
+//! settled by a few updates (on the evidence subset first: one that reaches the best's basin
+//! there needs nothing more) and screened against it, and those that could rival it (half its
 //! screened significance or more) are run in full, the most significant result at its own scale
 //! kept (`BestOfStarts`); then its rivals (`challenge_with_rivals`). A start that ends at another
 //! pose nearly as significant lowers the kept one's margin, so a global stage whose candidates
@@ -48,14 +49,23 @@ pub(crate) fn register_from_feature_poses(
         .map(|pose| (*pose, StartKind::FeatureMatch))
         .chain(std::iter::once((init, StartKind::InitialGuess)));
     let settling = plan.settling(SETTLE_UPDATES);
+    let settling_on_evidence = plan.settling_on_evidence(SETTLE_UPDATES);
     for (from, kind) in starts {
         if let Some((pose, sigma)) = best.best_pose() {
-            let settled = settle(problem, from, &settling);
             // In the best's basin already: a full run would only end there again.
-            let typical_scale = problem.rows().scale.median();
-            if moved_apart(problem.probe_points(), &pose, &settled)
-                <= SAME_BASIN_SIGMAS * sigma * typical_scale
-            {
+            let in_basin = |problem: &CloudProblem<'_>, settled: &Matrix4<f64>| {
+                let typical_scale = problem.rows().scale.median();
+                moved_apart(problem.probe_points(), &pose, settled)
+                    <= SAME_BASIN_SIGMAS * sigma * typical_scale
+            };
+            // First on the evidence subset (a fifth of the coarse one's cost): most proposals
+            // lead into the best's basin, and that is all they need to show.
+            let quick = settle(problem, from, &settling_on_evidence);
+            if in_basin(problem, &quick) {
+                continue;
+            }
+            let settled = settle(problem, from, &settling);
+            if in_basin(problem, &settled) {
                 continue;
             }
             // Screened on the evidence subset: worth a full run only if it could lower the
