@@ -217,7 +217,7 @@ mod tests {
         let mut rng = Xoshiro256PlusPlus::seed_from_u64(31);
         // Coarse values make equal distances (ties) common; some descriptors are empty, and the
         // counts are not multiples of the lanes or bands.
-        let mut descriptor = |rng: &mut Xoshiro256PlusPlus| -> Fpfh {
+        let descriptor = |rng: &mut Xoshiro256PlusPlus| -> Fpfh {
             let mut f = [0.0; FPFH_BINS];
             if rng.random_range(0..20) > 0 {
                 for v in f.iter_mut() {
