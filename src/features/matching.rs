@@ -6,7 +6,8 @@
 //! minimum along its row, a target's nearest source the minimum down its column. The targets
 //! are stored in blocks of [`LANES`], bin by bin, so that one source's differences to a block
 //! run side by side (vectorised) with each lane summing in the order of a plain scalar loop:
-//! the distances, and so the matches, are those of the straightforward two-way scan.
+//! the distances, and so the matches, are those of the straightforward two-way scan. A block is
+//! left early once no lane can beat its row's or its column's best so far.
 
 use super::fpfh::{FPFH_BINS, Fpfh};
 use crate::parallel::Workers;
@@ -106,7 +107,7 @@ impl Band {
         for &i in &self.sources {
             let mut best = (None, f64::INFINITY);
             for (block, ids) in blocks.bins.iter().zip(&blocks.ids) {
-                // A lane whose first part already reaches both its row's and its column's best
+                // A lane whose first parts already reach both its row's and its column's best
                 // cannot win either (the parts only add): a block of such lanes is left there.
                 let mut bounds = [f64::INFINITY; LANES];
                 for (bound, id) in bounds.iter_mut().zip(ids) {
@@ -134,7 +135,7 @@ impl Band {
 }
 
 /// Squared Euclidean distances from `query` to the block's lanes, each summed as
-/// Σ_parts (Σ_bins in part (q − t)²) in bin order; `None` when after the first part every lane
+/// Σ_parts (Σ_bins in part (q − t)²) in bin order; `None` as soon as, after a part, every lane
 /// is at or beyond its bound.
 #[inline]
 fn squared_distances(
@@ -143,10 +144,9 @@ fn squared_distances(
     bounds: &[f64; LANES],
 ) -> Option<[f64; LANES]> {
     let mut total = [0.0; LANES];
-    for (part_index, (query_part, block_part)) in query
+    for (query_part, block_part) in query
         .chunks_exact(BINS_PER_PART)
         .zip(block.chunks_exact(BINS_PER_PART))
-        .enumerate()
     {
         let mut part = [0.0; LANES];
         for (&q, lanes) in query_part.iter().zip(block_part) {
@@ -158,7 +158,7 @@ fn squared_distances(
         for lane in 0..LANES {
             total[lane] += part[lane];
         }
-        if part_index < 2 && total.iter().zip(bounds).all(|(t, b)| t >= b) {
+        if total.iter().zip(bounds).all(|(t, b)| t >= b) {
             return None;
         }
     }
