@@ -15,7 +15,7 @@
 use nalgebra::{Matrix4, Translation3};
 
 use super::choice::BestOfStarts;
-use super::half_turns::{QuarterTurns, RivalProgress, SETTLE_UPDATES, TurnedRivals};
+use super::half_turns::{QuarterTurns, RivalProgress, SETTLE_UPDATES, TurnedRivals, inliers_at};
 use super::period_shifts::period_shifts;
 use super::quarter_turns::QUARTER_TURN_REACH;
 use super::scaled_source::fit_scaled;
@@ -386,7 +386,7 @@ pub(crate) fn challenge_with_rivals(
         if !turns.rivals(problem, &best.evidence, &settled) {
             continue;
         }
-        let own = *best_inliers.get_or_insert_with(|| turns.inliers_at(problem, &transform, sigma));
+        let own = *best_inliers.get_or_insert_with(|| inliers_at(problem, &transform, sigma));
         best.park();
         let mut progress = RivalProgress::new(own, sigma);
         let run = run_on_clouds_gated(

@@ -114,18 +114,6 @@ impl TurnedRivals {
         TurnedRivals { poses, own }
     }
 
-    /// The rows within the inlier radius of σ = `sigma` among every row of the final
-    /// evaluation at `transform` (what [`TurnedRivals::nearly_as_good`] compares with). Leaves
-    /// the problem's rows there.
-    pub(crate) fn inliers_at(
-        &self,
-        problem: &mut CloudProblem<'_>,
-        transform: &Matrix4<f64>,
-        sigma: f64,
-    ) -> usize {
-        inliers_at(problem, transform, sigma)
-    }
-
     /// Whether the problem's rows (a refined half turn's final evaluation) explain the data
     /// nearly as well as the best result or better: as many rows within the best's inlier
     /// radius (its σ, `sigma`) as its `own` count, less at most [`FEWER_INLIERS_DEVIATIONS`]
@@ -151,10 +139,10 @@ impl TurnedRivals {
     }
 }
 
-/// Rows whose normalised squared residual is at most `radius_squared`.
 /// The rows within the inlier radius of σ = `sigma` among every row of the final evaluation at
-/// `transform`. Leaves the problem's rows there.
-fn inliers_at(problem: &mut dyn Problem, transform: &Matrix4<f64>, sigma: f64) -> usize {
+/// `transform` (what [`TurnedRivals::nearly_as_good`] compares with). Leaves the problem's rows
+/// there.
+pub(crate) fn inliers_at(problem: &mut dyn Problem, transform: &Matrix4<f64>, sigma: f64) -> usize {
     let cols = problem.cols();
     inliers_within(
         problem.evaluate_all(transform),
@@ -163,6 +151,7 @@ fn inliers_at(problem: &mut dyn Problem, transform: &Matrix4<f64>, sigma: f64) -
     )
 }
 
+/// Rows whose normalised squared residual is at most `radius_squared`.
 fn inliers_within(rows: &Rows, cols: usize, radius_squared: f64) -> usize {
     rows.residual
         .chunks_exact(cols)
