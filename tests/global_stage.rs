@@ -194,3 +194,49 @@ fn clouds_too_small_or_too_plain_to_describe_are_refused_with_the_reason() {
     reason = "the tutorial's yaw, which happens to be near ln 2"
 )]
 const ROOM_ODOMETRY_YAW: f64 = 0.6931;
+
+/// The scale the units message names ("… own is 977x the target's …"), read back from it.
+fn named_ratio(message: &str) -> f64 {
+    let before_x = message.split("x the ").next().unwrap();
+    before_x.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
+#[test]
+fn clouds_of_other_density_are_registered_and_clouds_in_other_units_refused_with_the_scales() {
+    let Some(dir) = data_dir() else { return };
+    let read = |scan: &str| {
+        read_cloud(&dir.join(format!("stanford-bunny-scans/{scan}.ply")))
+            .unwrap()
+            .points
+    };
+    let (source, target) = (read("bun045"), read("bun000"));
+    let world_target = scan_pose(&dir, "bun000");
+    let truth = world_target.try_inverse().unwrap() * scan_pose(&dir, "bun045");
+    // A tenth of the source's points (spacing about 3x the target's): one scale serves both.
+    let sparse: Vec<Point> = source.iter().step_by(10).copied().collect();
+    let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), 90f64.to_radians());
+    check(
+        "a tenth of bun045 -> bun000 turned 90° about x",
+        &sparse,
+        &target,
+        &truth,
+        &turn,
+    );
+    // The source in millimetres or centimetres, the target in metres, each way round: refused,
+    // the message names the scales' ratio.
+    for (unit, factor) in [("mm", 1000.0), ("cm", 100.0)] {
+        let scaled: Vec<Point> = source.iter().map(|p| p.map(|c| c * factor)).collect();
+        for (what, s, t) in [("source", &scaled, &target), ("target", &target, &scaled)] {
+            let error = register_clouds(s, t, None, None, &global(), Hooks::default()).unwrap_err();
+            let Error::TooFewPoints(message) = &error else {
+                panic!("{unit} {what}: {error:?}")
+            };
+            assert!(message.contains("different units"), "{unit} {what}: {message}");
+            let ratio = named_ratio(message);
+            assert!(
+                (0.5 * factor..2.0 * factor).contains(&ratio),
+                "{unit} {what}: ratio {ratio} in {message}"
+            );
+        }
+    }
+}

@@ -29,8 +29,12 @@ const SPACING_SAMPLE: usize = 2000;
 /// describe the same neighbourhoods).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DescriptorScale {
-    /// Voxel edge (input units).
+    /// Voxel edge (input units): the larger of the two clouds' own.
     pub voxel: f64,
+    /// The voxel the source alone would take.
+    pub source_voxel: f64,
+    /// The voxel the target alone would take.
+    pub target_voxel: f64,
 }
 
 impl DescriptorScale {
@@ -44,9 +48,13 @@ impl DescriptorScale {
         target_index: &NearestNeighbours,
         max_keypoints: usize,
     ) -> Option<Self> {
-        let a = voxel_for(source, source_index, max_keypoints)?;
-        let b = voxel_for(target, target_index, max_keypoints)?;
-        Some(DescriptorScale { voxel: a.max(b) })
+        let source_voxel = voxel_for(source, source_index, max_keypoints)?;
+        let target_voxel = voxel_for(target, target_index, max_keypoints)?;
+        Some(DescriptorScale {
+            voxel: source_voxel.max(target_voxel),
+            source_voxel,
+            target_voxel,
+        })
     }
 
     /// Radius of the normals' neighbourhoods.
@@ -249,7 +257,12 @@ mod tests {
     #[test]
     fn keypoints_are_voxel_centroids_and_normals_face_the_origin() {
         let points = vec![[0.1, 0.1, 5.0], [0.3, 0.3, 5.0], [1.5, 0.5, 5.0]];
-        let keypoints = Keypoints::of(&points, &DescriptorScale { voxel: 1.0 }).points;
+        let unit = DescriptorScale {
+            voxel: 1.0,
+            source_voxel: 1.0,
+            target_voxel: 1.0,
+        };
+        let keypoints = Keypoints::of(&points, &unit).points;
         assert_eq!(keypoints, vec![[0.2, 0.2, 5.0], [1.5, 0.5, 5.0]]);
         let plane: Vec<Point> = (0..100)
             .map(|k| [(k % 10) as f64, (k / 10) as f64, 5.0])

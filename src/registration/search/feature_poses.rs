@@ -19,6 +19,11 @@ const MIN_KEYPOINTS: usize = 50;
 /// (mean n·nᵀ) at least this (normals within about 6° of one direction are one plane, whose
 /// descriptors are all alike; real scenes keep 0.05 and more).
 const MIN_NORMAL_SPREAD: f64 = 0.01;
+/// When a cloud has too few keypoints at the voxel both share and the other cloud's own voxel
+/// is this many times its own, the message names the scales: partial views of one scene in one
+/// unit take voxels within a few times of each other (their extents), while millimetres
+/// against metres differ 1000x, centimetres 100x.
+const MIN_SCALE_RATIO: f64 = 20.0;
 /// Most keypoints a cloud may keep (`DescriptorScale` aims at 2500), which bounds the
 /// descriptors' memory and the matching's time.
 pub(crate) const MAX_KEYPOINTS: usize = 4000;
@@ -61,8 +66,8 @@ pub(crate) fn feature_poses(
             )
         })?;
     drop((source_index, target_index));
-    let source = Described::of("source", source, &scale, workers)?;
-    let target = Described::of("target", target, &scale, workers)?;
+    let source = Described::of(Role::Source, source, &scale, workers)?;
+    let target = Described::of(Role::Target, target, &scale, workers)?;
     let matches = mutual_matches(&source.features, &target.features, workers);
     let pair_source: Vec<Point> = matches.iter().map(|&(i, _)| source.points[i]).collect();
     let pair_target: Vec<Point> = matches.iter().map(|&(_, j)| target.points[j]).collect();
@@ -79,6 +84,37 @@ pub(crate) fn feature_poses(
     })
 }
 
+/// Which cloud is described (for the messages).
+#[derive(Clone, Copy)]
+enum Role {
+    Source,
+    Target,
+}
+
+impl Role {
+    fn name(self) -> &'static str {
+        match self {
+            Role::Source => "source",
+            Role::Target => "target",
+        }
+    }
+
+    /// The voxel this cloud alone would take, and the other cloud's.
+    fn own_and_other_voxels(self, scale: &DescriptorScale) -> (f64, f64) {
+        match self {
+            Role::Source => (scale.source_voxel, scale.target_voxel),
+            Role::Target => (scale.target_voxel, scale.source_voxel),
+        }
+    }
+
+    fn other(self) -> Role {
+        match self {
+            Role::Source => Role::Target,
+            Role::Target => Role::Source,
+        }
+    }
+}
+
 /// A cloud's keypoints with a normal, and their descriptors.
 struct Described {
     points: Vec<Point>,
@@ -86,7 +122,8 @@ struct Described {
 }
 
 impl Described {
-    fn of(name: &str, cloud: &[Point], scale: &DescriptorScale, workers: &Workers) -> Result<Self, Error> {
+    fn of(role: Role, cloud: &[Point], scale: &DescriptorScale, workers: &Workers) -> Result<Self, Error> {
+        let name = role.name();
         let keypoints = Keypoints::of(cloud, scale).points;
         let index = NearestNeighbours::new(&keypoints)?;
         let normals = keypoint_normals(&keypoints, &index, scale.normal_radius(), workers);
@@ -97,10 +134,22 @@ impl Described {
             .map(|(p, n)| (*p, *n))
             .unzip();
         if points.len() < MIN_KEYPOINTS {
+            let (own, other) = role.own_and_other_voxels(scale);
+            let why = if other >= MIN_SCALE_RATIO * own {
+                format!(
+                    "both clouds are described at one scale, and the {}'s own is {:.0}x the {name}'s \
+                     (voxel {other:.4e} against {own:.4e}): clouds in different units (millimetres \
+                     against metres), or a small object against a whole scene; bring them to the same \
+                     units, or register from an initial guess",
+                    role.other().name(),
+                    other / own
+                )
+            } else {
+                "too few points, or a line, to describe; register from an initial guess instead".to_string()
+            };
             return Err(Error::TooFewPoints(format!(
                 "the global stage needs at least {MIN_KEYPOINTS} keypoints with a surface normal in each \
-                 cloud; the {name} gives {} ({} points, voxel {:.4e}): too few points, or a line, to \
-                 describe; register from an initial guess instead",
+                 cloud; the {name} gives {} ({} points, voxel {:.4e}): {why}",
                 points.len(),
                 cloud.len(),
                 scale.voxel
