@@ -1101,7 +1101,9 @@ sie_status sie_context_set_progress_callback(struct sie_context *ctx,
  * On success the result is stored in the context for the `sie_context_get_*` functions; on
  * any error the previous result is discarded. Non-convergence is not an error (see
  * `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
- * transform, a count beyond the address space), TOO_FEW_POINTS (a count is 0 or too small),
+ * transform, a count beyond the address space, clouds that cannot meet: one fits between two
+ * neighbouring points of the other, as millimetres against metres), TOO_FEW_POINTS (a count
+ * is 0 or too small),
  * NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
  * (the copies of the clouds or the registration's working set, about 450 bytes per source
  * and 160 per target point, cannot be allocated; checked before the registration starts).
@@ -1327,7 +1329,8 @@ sie_status sie_context_odometry_new(struct sie_context *ctx, struct sie_odometry
  * A frame that cannot be used returns its error and changes nothing the caller holds; the
  * odometry goes on from the last accepted frame as if it had not come, its guess one frame
  * further: TOO_FEW_POINTS (count 0, or no point left after the context's skips),
- * NON_FINITE_INPUT (a NaN or infinite coordinate the settings do not skip), OUT_OF_MEMORY.
+ * NON_FINITE_INPUT (a NaN or infinite coordinate the settings do not skip), INVALID_ARGUMENT
+ * (a frame that cannot meet the last accepted one: different units), OUT_OF_MEMORY.
  * Caller errors (NULL_ARGUMENT, INVALID_ARGUMENT for a bad stride or alignment, BUSY) change
  * nothing either. CANCELLED: the frame was set aside, its result stored, nothing written.
  *

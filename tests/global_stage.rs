@@ -222,9 +222,18 @@ fn clouds_of_other_density_are_registered_and_clouds_in_other_units_refused_with
         &truth,
         &turn,
     );
-    // The source in millimetres or centimetres, the target in metres, each way round: refused,
-    // the message names the scales' ratio.
-    for (unit, factor) in [("mm", 1000.0), ("cm", 100.0)] {
+    // Millimetres against metres: the whole metre cloud fits between two millimetre points,
+    // refused before anything is described (as every registration refuses it).
+    let millimetres: Vec<Point> = source.iter().map(|p| p.map(|c| c * 1000.0)).collect();
+    let error = register_clouds(&millimetres, &target, None, None, &global(), Hooks::default()).unwrap_err();
+    assert!(
+        matches!(&error, Error::InvalidArgument(m) if m.contains("same units")),
+        "{error:?}"
+    );
+    // Centimetres and inches against metres, each way round: described at the larger cloud's
+    // voxel, the smaller keeps a handful of keypoints; refused, the message names the scales'
+    // ratio.
+    for (unit, factor) in [("cm", 100.0), ("in", 39.37)] {
         let scaled: Vec<Point> = source.iter().map(|p| p.map(|c| c * factor)).collect();
         for (what, s, t) in [("source", &scaled, &target), ("target", &target, &scaled)] {
             let error = register_clouds(s, t, None, None, &global(), Hooks::default()).unwrap_err();

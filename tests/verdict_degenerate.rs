@@ -15,7 +15,7 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use sie::geometry::transform_point;
 use sie::{
-    Hooks, LooseDirection, Metric, Point, RegistrationConfig, RegistrationResult, Starts, Verdict,
+    Error, Hooks, LooseDirection, Metric, Point, RegistrationConfig, RegistrationResult, Starts, Verdict,
     register_clouds,
 };
 
@@ -595,15 +595,32 @@ fn a_sphere_is_never_good() {
     assert_never_good("sphere", &source, &target, &truth);
 }
 
-/// A source scaled by 1 000 (millimetres read as metres onto metres, reversed) has no rigid
-/// answer: never GOOD. Nor has a source scaled by a few per cent (a depth camera's scale
-/// error), where ICP aligns one corner of the room to the noise and leaves the rest out: the
-/// fit that also scales the source (`Quality::scaled_source`) finds the scale and makes it
-/// DOUBTFUL, every metric and starts setting. (`examples/scaled_sources.rs` has more seeds and
-/// factors; docs/results.md, "A scaled source", what it still misses.)
+/// A source scaled by a few per cent (a depth camera's scale error) has no rigid answer, but
+/// ICP aligns one corner of the room to the noise and leaves the rest out: the fit that also
+/// scales the source (`Quality::scaled_source`) finds the scale and makes it DOUBTFUL, every
+/// metric and starts setting. (`examples/scaled_sources.rs` has more seeds and factors;
+/// docs/results.md, "A scaled source", what it still misses.) A source scaled by 1/1000
+/// (metres read as millimetres) fits between two target points: refused, every way.
 #[test]
 fn a_scaled_source_is_never_good() {
-    for (seed, factor) in [(41, 1.05), (42, 0.95), (43, 1.1), (44, 0.9), (41, 0.001)] {
+    let scene = sie::synthetic::room_scene(8_000, NOISE, 41);
+    let shrunk: Vec<Point> = scene.source.iter().map(|p| p.map(|c| c * 0.001)).collect();
+    for metric in [Metric::PointToPoint, Metric::PointToPlane] {
+        for starts in [Starts::InitialGuess, Starts::Automatic, Starts::Global] {
+            let config = RegistrationConfig {
+                metric,
+                starts,
+                ..RegistrationConfig::default()
+            };
+            let error =
+                register_clouds(&shrunk, &scene.target, None, None, &config, Hooks::default()).unwrap_err();
+            assert!(
+                matches!(&error, Error::InvalidArgument(m) if m.contains("same units")),
+                "{metric:?} {starts:?}: {error:?}"
+            );
+        }
+    }
+    for (seed, factor) in [(41, 1.05), (42, 0.95), (43, 1.1), (44, 0.9)] {
         let scene = sie::synthetic::room_scene(8_000, NOISE, seed);
         let scaled: Vec<Point> = scene.source.iter().map(|p| p.map(|c| c * factor)).collect();
         for (how, result) in register_every_way(&scaled, &scene.target) {

@@ -159,7 +159,8 @@ unsafe fn register_frame_from<T: Coordinate>(
 /// A frame that cannot be used returns its error and changes nothing the caller holds; the
 /// odometry goes on from the last accepted frame as if it had not come, its guess one frame
 /// further: TOO_FEW_POINTS (count 0, or no point left after the context's skips),
-/// NON_FINITE_INPUT (a NaN or infinite coordinate the settings do not skip), OUT_OF_MEMORY.
+/// NON_FINITE_INPUT (a NaN or infinite coordinate the settings do not skip), INVALID_ARGUMENT
+/// (a frame that cannot meet the last accepted one: different units), OUT_OF_MEMORY.
 /// Caller errors (NULL_ARGUMENT, INVALID_ARGUMENT for a bad stride or alignment, BUSY) change
 /// nothing either. CANCELLED: the frame was set aside, its result stored, nothing written.
 ///

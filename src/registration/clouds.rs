@@ -9,8 +9,8 @@ use nalgebra::Matrix4;
 use super::config::{Metric, RegistrationConfig};
 use super::hooks::{Hooks, Observer, in_units, with_share};
 use super::input::{
-    Selection, Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_points,
-    sigma_slices,
+    Selection, Skip, checked_initial_guess, expand, noise_sigmas, require_finite, require_meeting_scales,
+    require_points, sigma_slices,
 };
 use super::irls::{RunPlan, searches_globally, searches_starts};
 use super::problem::CloudProblem;
@@ -217,6 +217,10 @@ fn register_to_prepared(
         }
         None => source,
     };
+    let target_units = target.units();
+    require_meeting_scales(&points, target.points(), target_units.length_out(1.0), || {
+        target_units.length_out(target.spacing())
+    })?;
     let init = checked_initial_guess(init)?;
     let share = selection.as_ref().map_or(1.0, Selection::share);
     let result = with_share(hooks, share, |hooks| {

@@ -193,6 +193,116 @@ pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> 
     }
 }
 
+/// Clouds whose spreads (RMS distance of the points from their centroid) differ this many times
+/// are checked for a scale at which they cannot meet ([`require_meeting_scales`]).
+const SCALE_GAP: f64 = 100.0;
+/// Points a cloud's spread is taken over (evenly strided, as the prepared target's).
+const SPREAD_SAMPLE: usize = 1024;
+/// Source points whose nearest other source point gives the source's spacing, when needed.
+const SPACING_SAMPLE: usize = 32;
+
+/// Refuses clouds that cannot meet at any pose: every point of the smaller lies within half a
+/// point spacing of its centre, so the whole of it fits between two neighbouring points of the
+/// other, as a cloud in millimetres against one in metres does. Checked only when the spreads
+/// differ [`SCALE_GAP`] times; the target's spacing is asked for, and the source's computed,
+/// only then. The target's points are in units `target_length` times the caller's (the
+/// prepared target's); the message speaks the caller's. Error: [`Error::InvalidArgument`]
+/// naming both scales.
+pub(crate) fn require_meeting_scales(
+    source: &[Point],
+    target: &[Point],
+    target_length: f64,
+    target_spacing: impl FnOnce() -> f64,
+) -> Result<(), Error> {
+    let source_spread = spread(source);
+    let target_spread = target_length * spread(target);
+    let refusal = |small: &str, radius: f64, large: &str, spacing: f64| {
+        Error::InvalidArgument(format!(
+            "every {small} point lies within {radius:.3e} of the {small}'s centre, and the {large}'s \
+             points lie {spacing:.3e} apart: the whole {small} fits between two {large} points, so \
+             no pose can match it; are both clouds in the same units (millimetres against metres)?"
+        ))
+    };
+    if source_spread > 0.0 && target_spread >= SCALE_GAP * source_spread {
+        let (radius, spacing) = (radius(source), target_spacing());
+        if 2.0 * radius < spacing {
+            return Err(refusal("source", radius, "target", spacing));
+        }
+    }
+    if target_spread > 0.0 && source_spread >= SCALE_GAP * target_spread {
+        let (radius, spacing) = (target_length * radius(target), sampled_spacing(source));
+        if 2.0 * radius < spacing {
+            return Err(refusal("target", radius, "source", spacing));
+        }
+    }
+    Ok(())
+}
+
+/// The centroid of `points` in units of their largest coordinate (so that sums and squares
+/// cannot overflow or vanish at any magnitude), with that unit; `None` for no extent to measure.
+fn scaled_centre<'a>(points: impl Iterator<Item = &'a Point> + Clone) -> Option<([f64; 3], f64)> {
+    let unit = points
+        .clone()
+        .flat_map(|p| p.iter())
+        .fold(0.0, |m: f64, c| m.max(c.abs()));
+    let n = points.clone().count() as f64;
+    if n == 0.0 || !(unit > 0.0 && unit.is_finite()) {
+        return None;
+    }
+    let centre = std::array::from_fn(|a| points.clone().map(|p| p[a] / unit).sum::<f64>() / n);
+    Some((centre, unit))
+}
+
+fn squared_offset(p: &Point, centre: &[f64; 3], unit: f64) -> f64 {
+    (0..3).map(|a| (p[a] / unit - centre[a]).powi(2)).sum()
+}
+
+/// RMS distance of `points` from their centroid, over at most [`SPREAD_SAMPLE`] evenly strided
+/// points (0 for none).
+fn spread(points: &[Point]) -> f64 {
+    let step = points.len().div_ceil(SPREAD_SAMPLE).max(1);
+    let sample = points.iter().step_by(step);
+    let Some((centre, unit)) = scaled_centre(sample.clone()) else {
+        return 0.0;
+    };
+    let n = sample.clone().count() as f64;
+    unit * (sample.map(|p| squared_offset(p, &centre, unit)).sum::<f64>() / n).sqrt()
+}
+
+/// The largest distance of a point of `points` from their centroid (0 for none).
+fn radius(points: &[Point]) -> f64 {
+    let Some((centre, unit)) = scaled_centre(points.iter()) else {
+        return 0.0;
+    };
+    unit * points
+        .iter()
+        .map(|p| squared_offset(p, &centre, unit))
+        .fold(0.0, f64::max)
+        .sqrt()
+}
+
+/// Median distance from [`SPACING_SAMPLE`] evenly strided points to their nearest other point
+/// (at another place), by brute force: no index is built for a check that rarely runs.
+fn sampled_spacing(points: &[Point]) -> f64 {
+    let Some((_, unit)) = scaled_centre(points.iter()) else {
+        return 0.0;
+    };
+    let step = points.len().div_ceil(SPACING_SAMPLE).max(1);
+    let mut gaps: Vec<f64> = points
+        .iter()
+        .step_by(step)
+        .filter_map(|p| {
+            points
+                .iter()
+                .filter(|q| *q != p)
+                .map(|q| (0..3).map(|a| ((p[a] - q[a]) / unit).powi(2)).sum::<f64>())
+                .min_by(f64::total_cmp)
+                .map(|squared| unit * squared.sqrt())
+        })
+        .collect();
+    crate::median::median(&mut gaps).unwrap_or(0.0)
+}
+
 /// How far a given normal's length may be from 1.
 pub const NORMAL_LENGTH_TOLERANCE: f64 = 1e-3;
 
@@ -255,6 +365,46 @@ pub(crate) fn noise_sigmas(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `n` points evenly along x over [0, length), at `x0`.
+    fn segment(n: usize, length: f64, x0: f64) -> Vec<Point> {
+        (0..n)
+            .map(|k| [x0 + length * k as f64 / n as f64, 0.0, 0.0])
+            .collect()
+    }
+
+    #[test]
+    fn clouds_that_fit_between_two_points_of_the_other_are_refused_and_only_they() {
+        // The target: 2000 points over [0, 1) (spacing 5e-4, spread 0.289).
+        let target = segment(2000, 1.0, 0.0);
+        let within = |source: &[Point]| require_meeting_scales(source, &target, 1.0, || 5e-4);
+        // 10 points over 4e-4 (radius 2e-4): between two target points.
+        let error = within(&segment(10, 4e-4, 0.5)).unwrap_err();
+        assert!(
+            matches!(&error, Error::InvalidArgument(m) if m.starts_with("every source point lies within 1.8")
+                && m.contains("apart: the whole source fits") && m.contains("same units")),
+            "{error:?}"
+        );
+        // 10 points over 2e-3 (spread 5.7e-4, 500 times smaller than the target's, radius 9e-4):
+        // a piece of it a few target points cover.
+        within(&segment(10, 2e-3, 0.5)).unwrap();
+        // Spreads within SCALE_GAP of each other: the target's spacing is not even asked for.
+        require_meeting_scales(&segment(100, 0.1, 0.0), &target, 1.0, || panic!("asked")).unwrap();
+        // The other way round: the target (radius 1.8e-4 in the caller's units, held at 1/1000)
+        // between two points of a source of 100 points over 1000 (spacing 10).
+        let held = segment(10, 0.4, 0.0);
+        let error =
+            require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 1e-3, || panic!("asked")).unwrap_err();
+        assert!(
+            matches!(&error, Error::InvalidArgument(m) if m.starts_with("every target point lies within 1.800e-4")
+                && m.contains("the source's points lie 1.000e1 apart")),
+            "{error:?}"
+        );
+        // Held at 30 times: its radius (5.4) reaches past half a source spacing.
+        require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 30.0, || panic!("asked")).unwrap();
+        // No extent to compare: left to the other rules.
+        require_meeting_scales(&[[1.0; 3]; 5], &target, 1.0, || panic!("asked")).unwrap();
+    }
 
     /// Copies are grouped (−0.0 equals 0.0), dropped points leave whole locations out, and
     /// every copy gets its location's results back; the share counts locations.

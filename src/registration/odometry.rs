@@ -34,7 +34,8 @@ pub enum FrameStatus {
     /// Bit for bit the last accepted frame again (a driver that sent it twice): ignored.
     Repeated,
     /// Refused as input (`FrameOutcome::error` says why: no point left after dropping
-    /// invalid ones, a non-finite coordinate the config rejects, memory): ignored.
+    /// invalid ones, a non-finite coordinate the config rejects, a frame in other units than
+    /// the last accepted one, memory): ignored.
     InputRejected,
     /// Registered, but the verdict is not GOOD (`FrameOutcome::result` has it) and the frame
     /// is not `Loose`: the pose is not trusted and the frame is ignored (a jump, a frame from

@@ -99,6 +99,11 @@ impl Units {
         std::array::from_fn(|axis| p[axis] * self.length + self.centre[axis])
     }
 
+    /// A length in these units back in the caller's.
+    pub(crate) fn length_out(&self, length: f64) -> f64 {
+        length * self.length
+    }
+
     pub(crate) fn is_identity(&self) -> bool {
         *self == Units::IDENTITY
     }

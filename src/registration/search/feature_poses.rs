@@ -138,7 +138,7 @@ impl Described {
             let why = if other >= MIN_SCALE_RATIO * own {
                 format!(
                     "both clouds are described at one scale, and the {}'s own is {:.0}x the {name}'s \
-                     (voxel {other:.4e} against {own:.4e}): clouds in different units (millimetres \
+                     (voxel {other:.4e} against {own:.4e}): clouds in different units (centimetres \
                      against metres), or a small object against a whole scene; bring them to the same \
                      units, or register from an initial guess",
                     role.other().name(),
