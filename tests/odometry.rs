@@ -240,3 +240,64 @@ fn a_loosely_fixed_view_is_taken_not_set_aside() {
         "after {DEPTH_FRAMES} frames: {degrees:.2}° / {metres:.3} m off"
     );
 }
+
+/// A LiDAR sweep (64 beams, about 50 k returns) is registered on about 16 000 of its points, one
+/// per voxel of a size chosen from the sweep; the result still gives every point of the sweep
+/// its probability and match (those of the point kept in its voxel; a missing return, written
+/// as 0 0 0 and skipped, 0 and -1), and the motion is right to 5 mm.
+#[test]
+fn a_lidar_sweep_is_registered_thinned_and_its_result_speaks_for_every_point() {
+    use nalgebra::Isometry3;
+    use sie::synthetic::lidar::{SENSOR_HEIGHT, Scanner, Street};
+    let scanner = Scanner::sixty_four_beams();
+    let street = Street::generate(11, 100.0);
+    let positions = [20.0, 20.4, 20.8];
+    let sweeps: Vec<Vec<Point>> = positions
+        .iter()
+        .enumerate()
+        .map(|(i, x)| {
+            let pose = Isometry3::translation(*x, 0.0, SENSOR_HEIGHT);
+            scanner.sweep(&street, &pose, None, i as u64 + 1)
+        })
+        .collect();
+    let config = RegistrationConfig {
+        record_trace: true,
+        ..Odometry::sensor_config()
+    };
+    let mut odometry = Odometry::new(config).unwrap();
+    assert_eq!(
+        odometry.register_frame(&sweeps[0], Hooks::default()).status,
+        FrameStatus::First
+    );
+    for (i, sweep) in sweeps.iter().enumerate().skip(1) {
+        let returns = sweep.iter().filter(|p| **p != [0.0; 3]).count();
+        assert!(returns > 40_000, "sweep {i}: {returns} returns");
+        let outcome = odometry.register_frame(sweep, Hooks::default());
+        assert_eq!(outcome.status, FrameStatus::Accepted, "sweep {i}");
+        let result = outcome.result.unwrap();
+        let rows = result.trace.last().unwrap().correspondences;
+        assert!(rows < 25_000, "sweep {i}: {rows} rows of {returns} returns");
+        assert_eq!(result.probabilities.len(), sweep.len());
+        assert_eq!(result.correspondences.len(), sweep.len());
+        for (k, p) in sweep.iter().enumerate() {
+            if *p == [0.0; 3] {
+                assert_eq!(
+                    (result.probabilities[k], result.correspondences[k]),
+                    (0.0, -1),
+                    "{k}"
+                );
+            }
+        }
+        let inliers = result.probabilities.iter().filter(|&&w| w > 0.5).count();
+        assert!(
+            inliers > returns / 2,
+            "sweep {i}: {inliers} of {returns} returns inliers"
+        );
+        let truth = Translation3::new(positions[i] - positions[i - 1], 0.0, 0.0).to_homogeneous();
+        let (degrees, metres) = error(&result.transform, &truth);
+        assert!(
+            degrees < 0.05 && metres < 0.005,
+            "sweep {i}: {degrees:.4}° / {metres:.4} m"
+        );
+    }
+}

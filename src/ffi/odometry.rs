@@ -154,7 +154,9 @@ unsafe fn register_frame_from<T: Coordinate>(
 /// the sensor's frame. On OK `*out_frame_status` receives a `sie_frame_status` and, for FIRST,
 /// ACCEPTED and LOOSE only, `out_T_world_sensor` (16 doubles, row-major) the frame's pose; the
 /// context holds the frame's registration (ACCEPTED, LOOSE, NOT_GOOD, JUMPED) for the usual
-/// queries.
+/// queries. A frame of more than 32 768 valid points is registered on about 16 384, one per
+/// voxel of a size chosen from it; its per-point results still have one entry per frame point,
+/// each that of the point kept in its voxel.
 ///
 /// A frame that cannot be used returns its error and changes nothing the caller holds; the
 /// odometry goes on from the last accepted frame as if it had not come, its guess one frame

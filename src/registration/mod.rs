@@ -31,6 +31,7 @@ mod result;
 mod search;
 pub(crate) mod significance;
 mod target;
+mod thinning;
 mod units;
 mod verdict;
 mod warm;

@@ -8,20 +8,28 @@
 //! GOOD passed but the conditioning. Such a view stays loose in the next frames (a depth
 //! camera whose yaw rests on far, noisy walls), and setting them aside would register each
 //! next frame further from its keyframe until none registers.
+//!
+//! A frame of more than twice `thinning::THINNED_POINTS` valid points (a LiDAR sweep) is
+//! registered on about that many of them, one per voxel of a size chosen from the frame; its
+//! target is still the whole last accepted frame, and its result names every frame point, each
+//! with the probability and match of the point kept in its voxel.
 
 use std::hash::{DefaultHasher, Hash, Hasher};
 
 use nalgebra::Matrix4;
 
 use crate::error::Error;
+use crate::geometry::is_finite;
 use crate::geometry::{length, orthonormalised, rotation_angle, rotation_part, translation_part};
 use crate::median::median;
+use crate::point::NonFinite;
 use crate::point::Point;
 use crate::registration::clouds::register_clouds_to;
 use crate::registration::config::RegistrationConfig;
 use crate::registration::hooks::Hooks;
 use crate::registration::result::{Quality, RegistrationResult, Verdict};
 use crate::registration::target::{PrepareOptions, PreparedTarget};
+use crate::registration::thinning::ThinnedFrame;
 use crate::registration::verdict::{MIN_CONDITIONING, verdict_with};
 
 /// What became of one frame given to [`Odometry::register_frame`].
@@ -73,7 +81,10 @@ pub struct FrameOutcome {
     /// accepted pose. `None` for the first frame and frames refused before it.
     pub predicted_pose: Option<Matrix4<f64>>,
     /// The frame's registration onto the last accepted frame (`Accepted`, `Loose`, `NotGood`
-    /// and `Jumped`).
+    /// and `Jumped`). Its `probabilities` and `correspondences` have one entry per frame point,
+    /// also when the frame was registered thinned (a point left out takes those of the point
+    /// kept in its voxel; a skipped point 0 and -1); `inlier_fraction` and the trace count the
+    /// points registered.
     pub result: Option<RegistrationResult>,
     /// Why an `InputRejected` frame was refused.
     pub error: Option<Error>,
@@ -126,6 +137,8 @@ pub struct Odometry {
     velocity: Option<Matrix4<f64>>,
     /// Frames since the last accepted one that were not repeats (the guess's steps).
     frames_since_accepted: u32,
+    /// The voxel the last thinned frame was thinned at (the next frame's first try).
+    thinning_voxel: Option<f64>,
 }
 
 impl Odometry {
@@ -141,6 +154,7 @@ impl Odometry {
             pose: Matrix4::identity(),
             velocity: None,
             frames_since_accepted: 0,
+            thinning_voxel: None,
         })
     }
 
@@ -204,8 +218,23 @@ impl Odometry {
         let first_since_accepted = self.frames_since_accepted == 0;
         let guess = self.guess();
         let predicted = self.predicted_pose();
-        let result = match register_clouds_to(frame, &keyframe.target, Some(&guess), &self.config, hooks) {
-            Ok(result) => result,
+        // A frame the config refuses for a non-finite point is registered whole, so that the
+        // error names the frame's own index.
+        let refused_as_given =
+            self.config.non_finite == NonFinite::Reject && frame.iter().any(|p| !is_finite(p));
+        let thinned = (!refused_as_given)
+            .then(|| ThinnedFrame::of(frame, self.config.skip_origin, self.thinning_voxel))
+            .flatten();
+        let registered = thinned.as_ref().map_or(frame, |t| &t.points);
+        let result = match register_clouds_to(registered, &keyframe.target, Some(&guess), &self.config, hooks)
+        {
+            Ok(mut result) => {
+                if let Some(thinned) = &thinned {
+                    self.thinning_voxel = Some(thinned.voxel);
+                    thinned.spread_to_frame(&mut result);
+                }
+                result
+            }
             Err(error) => {
                 self.skip_frame();
                 return outcome(FrameStatus::InputRejected, None, predicted, None, Some(error));
