@@ -408,9 +408,6 @@ mod tests {
 
     /// Copies are grouped (−0.0 equals 0.0), dropped points leave whole locations out, and
     /// every copy gets its location's results back; the share counts locations.
-    use crate::registration::covariance::PoseUncertainty;
-    use crate::registration::result::{Quality, SearchReport, StageTimes, StopReason};
-
     #[test]
     fn selection_keeps_each_location_once_and_expands_to_every_copy() {
         let a = [1.0, 2.0, 3.0];
@@ -434,26 +431,7 @@ mod tests {
         assert_eq!(selection.kept_points(), 5);
         // Locations: a, origin, b, NaN, (7, 8, 9); three kept.
         assert_eq!(selection.share(), 3.0 / 5.0);
-        let working = RegistrationResult {
-            transform: Matrix4::identity(),
-            stop_reason: StopReason::Converged,
-            converged: true,
-            iterations: 1,
-            sigma: vec![0.01],
-            beta: vec![0.0001],
-            penalty: 1.0,
-            noise_shape: 2.0,
-            inlier_fraction: 1.4 / 3.0,
-            rmse: 0.01,
-            probabilities: vec![0.9, 0.5, 0.0],
-            correspondences: vec![4, -1, 1],
-            histograms: Vec::new(),
-            trace: Vec::new(),
-            times: StageTimes::default(),
-            search: SearchReport::default(),
-            quality: Quality::default(),
-            uncertainty: PoseUncertainty::UNKNOWN,
-        };
+        let working = RegistrationResult::with_points(vec![0.9, 0.5, 0.0], vec![4, -1, 1], 1.4 / 3.0);
         let target_first = [3, 6, 9, 12, 15];
         let expanded = expand(working, &selection, points.len(), Some(&target_first));
         assert_eq!(expanded.probabilities, [0.9, 0.0, 0.5, 0.9, 0.0, 0.0, 0.9, 0.0]);

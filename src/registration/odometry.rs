@@ -19,11 +19,9 @@ use std::hash::{DefaultHasher, Hash, Hasher};
 use nalgebra::Matrix4;
 
 use crate::error::Error;
-use crate::geometry::is_finite;
-use crate::geometry::{length, orthonormalised, rotation_angle, rotation_part, translation_part};
+use crate::geometry::{is_finite, length, orthonormalised, rotation_angle, rotation_part, translation_part};
 use crate::median::median;
-use crate::point::NonFinite;
-use crate::point::Point;
+use crate::point::{NonFinite, Point};
 use crate::registration::clouds::register_clouds_to;
 use crate::registration::config::RegistrationConfig;
 use crate::registration::hooks::Hooks;

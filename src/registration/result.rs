@@ -267,3 +267,35 @@ impl RegistrationResult {
         (self.sigma.iter().map(|s| s * s).sum::<f64>() / self.sigma.len().max(1) as f64).sqrt()
     }
 }
+
+#[cfg(test)]
+impl RegistrationResult {
+    /// A converged result of one update with these per-point values (the rest plain), for
+    /// tests of what is done to a result's per-point arrays.
+    pub(crate) fn with_points(
+        probabilities: Vec<f64>,
+        correspondences: Vec<i64>,
+        inlier_fraction: f64,
+    ) -> Self {
+        RegistrationResult {
+            transform: Matrix4::identity(),
+            stop_reason: StopReason::Converged,
+            converged: true,
+            iterations: 1,
+            sigma: vec![0.01],
+            beta: vec![0.0001],
+            penalty: 1.0,
+            noise_shape: 2.0,
+            inlier_fraction,
+            rmse: 0.01,
+            probabilities,
+            correspondences,
+            histograms: Vec::new(),
+            trace: Vec::new(),
+            times: StageTimes::default(),
+            search: SearchReport::default(),
+            quality: Quality::default(),
+            uncertainty: PoseUncertainty::UNKNOWN,
+        }
+    }
+}

@@ -114,8 +114,6 @@ impl ThinnedFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registration::covariance::PoseUncertainty;
-    use crate::registration::result::{Quality, SearchReport, StageTimes, StopReason};
 
     /// A floor and two walls of `side`² points each, with every 97th point a missing return
     /// (0 0 0) and every 101st NaN.
@@ -184,26 +182,7 @@ mod tests {
         let valid = |p: &Point| *p != [0.0; 3];
         let thinned = ThinnedFrame::at(&frame, &valid, 1.0);
         assert_eq!(thinned.points, vec![[0.1, 0.1, 0.1], [5.1, 0.1, 0.1]]);
-        let mut result = RegistrationResult {
-            transform: nalgebra::Matrix4::identity(),
-            stop_reason: StopReason::Converged,
-            converged: true,
-            iterations: 1,
-            sigma: vec![0.01],
-            beta: vec![0.0001],
-            penalty: 1.0,
-            noise_shape: 2.0,
-            inlier_fraction: 0.5,
-            rmse: 0.01,
-            probabilities: vec![0.9, 0.25],
-            correspondences: vec![7, 3],
-            histograms: Vec::new(),
-            trace: Vec::new(),
-            times: StageTimes::default(),
-            search: SearchReport::default(),
-            quality: Quality::default(),
-            uncertainty: PoseUncertainty::UNKNOWN,
-        };
+        let mut result = RegistrationResult::with_points(vec![0.9, 0.25], vec![7, 3], 0.5);
         thinned.spread_to_frame(&mut result);
         assert_eq!(result.probabilities, vec![0.9, 0.9, 0.0, 0.25, 0.25]);
         assert_eq!(result.correspondences, vec![7, 7, -1, 3, 3]);
