@@ -230,22 +230,37 @@ fn clouds_of_other_density_are_registered_and_clouds_in_other_units_refused_with
         matches!(&error, Error::InvalidArgument(m) if m.contains("same units")),
         "{error:?}"
     );
-    // Centimetres and inches against metres, each way round: described at the larger cloud's
-    // voxel, the smaller keeps a handful of keypoints; refused, the message names the scales'
-    // ratio.
+    // Centimetres and inches against metres, each way round: the metre cloud reaches a few of
+    // the other's spacings and is sampled as finely for its size, refused as well.
     for (unit, factor) in [("cm", 100.0), ("in", 39.37)] {
         let scaled: Vec<Point> = source.iter().map(|p| p.map(|c| c * factor)).collect();
         for (what, s, t) in [("source", &scaled, &target), ("target", &target, &scaled)] {
             let error = register_clouds(s, t, None, None, &global(), Hooks::default()).unwrap_err();
-            let Error::TooFewPoints(message) = &error else {
-                panic!("{unit} {what}: {error:?}")
-            };
-            assert!(message.contains("different units"), "{unit} {what}: {message}");
-            let ratio = named_ratio(message);
             assert!(
-                (0.5 * factor..2.0 * factor).contains(&ratio),
-                "{unit} {what}: ratio {ratio} in {message}"
+                matches!(&error, Error::InvalidArgument(m) if m.contains("at \
+                    two scales") && m.contains("same units")),
+                "{unit} {what}: {error:?}"
             );
         }
+    }
+    // Centimetres with a 25th of the points: no longer a scaled copy (five times coarser for its
+    // size), so it reaches the descriptors. Described at the larger cloud's voxel, the metre cloud
+    // keeps a handful of keypoints; refused, the message names the voxels' ratio.
+    let centimetres: Vec<Point> = source.iter().step_by(25).map(|p| p.map(|c| c * 100.0)).collect();
+    for (what, s, t) in [
+        ("source", &centimetres, &target),
+        ("target", &target, &centimetres),
+    ] {
+        let error = register_clouds(s, t, None, None, &global(), Hooks::default()).unwrap_err();
+        let Error::TooFewPoints(message) = &error else {
+            panic!("thinned inches {what}: {error:?}")
+        };
+        assert!(message.contains("different units"), "{what}: {message}");
+        let ratio = named_ratio(message);
+        // Within the factor 5 the thinning adds to the units' 100 (55 when measured).
+        assert!(
+            (20.0..500.0).contains(&ratio),
+            "{what}: ratio {ratio} in {message}"
+        );
     }
 }

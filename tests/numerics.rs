@@ -442,8 +442,8 @@ fn estimate_inliers_on_a_dozen_samples_keeps_sigma_near_their_spread() {
 /// Clouds in millimetres against metres cannot meet: the smaller fits between two points of the
 /// larger. Refused at once with both scales named, either way round and at any magnitude
 /// (before, a default registration ran about 800 updates over four minutes to end DOUBTFUL);
-/// centimetres against metres are refused only when the smaller spans less than one spacing of
-/// the larger.
+/// centimetres against metres too, as a cloud a few of the other's spacings across that is
+/// sampled as finely for its size: the same cloud at another scale.
 #[test]
 fn clouds_in_units_that_cannot_meet_are_refused() {
     let scene = room_scene(2000, 0.01, 5);
@@ -469,29 +469,36 @@ fn clouds_in_units_that_cannot_meet_are_refused() {
         }
     }
     // Centimetres: the 2000-point room's spacing (13 cm) is more than its spread in metres
-    // (2.8): refused too. At 20 000 points (spacing 4 cm) the room in metres spans a few of the
-    // centimetre cloud's spacings, and is registered.
-    let error = register_clouds(
-        &scaled(&scene.source, 100.0),
-        &scene.target,
-        None,
-        None,
-        &config,
-        Hooks::default(),
-    )
-    .unwrap_err();
-    assert!(
-        matches!(&error, Error::InvalidArgument(m) if m.contains("same units")),
-        "{error:?}"
-    );
+    // (2.8): it fits between two points. At 20 000 points (spacing 4 cm) the room in metres
+    // reaches a few of the centimetre cloud's spacings and is sampled as finely for its size:
+    // the same cloud at two scales, refused as well, either way round.
     let dense = room_scene(20_000, 0.01, 5);
-    register_clouds(
-        &scaled(&dense.source, 100.0),
-        &dense.target,
-        None,
-        None,
-        &config,
-        Hooks::default(),
-    )
-    .unwrap();
+    for (scene, refusal) in [
+        (&scene, "every {small} point lies within"),
+        (&dense, "the {small} spreads "),
+    ] {
+        let centimetres = scaled(&scene.source, 100.0);
+        for (source, target, small) in [
+            (&centimetres, &scene.target, "target"),
+            (&scene.target, &centimetres, "source"),
+        ] {
+            let start = refusal.replace("{small}", small);
+            let error = register_clouds(source, target, None, None, &config, Hooks::default()).unwrap_err();
+            assert!(
+                matches!(&error, Error::InvalidArgument(m) if m.starts_with(&start) && m.contains("same units")),
+                "{start}: {error:?}"
+            );
+        }
+    }
+    // A corner of the room in the same units, its spread 20 times smaller than the room's: a
+    // handful of points, far coarser for its size, registered.
+    let centre = dense.source[0];
+    let corner: Vec<Point> = dense
+        .source
+        .iter()
+        .filter(|p| (0..3).map(|a| (p[a] - centre[a]).powi(2)).sum::<f64>() < 0.1f64.powi(2))
+        .copied()
+        .collect();
+    assert!(corner.len() >= 3, "{} corner points", corner.len());
+    register_clouds(&corner, &dense.target, None, None, &config, Hooks::default()).unwrap();
 }

@@ -216,8 +216,9 @@ unsafe fn register_correspondences_from<T: Coordinate>(
 /// On success the result is stored in the context for the `sie_context_get_*` functions; on
 /// any error the previous result is discarded. Non-convergence is not an error (see
 /// `sie_summary.converged`). Errors: NULL_ARGUMENT, INVALID_ARGUMENT (stride, alignment,
-/// transform, a count beyond the address space, clouds that cannot meet: one fits between two
-/// neighbouring points of the other, as millimetres against metres), TOO_FEW_POINTS (a count
+/// transform, a count beyond the address space, clouds in different units: one fits between
+/// two neighbouring points of the other, as millimetres against metres, or is the same kind of
+/// cloud 20 times or more smaller, as centimetres or inches against metres), TOO_FEW_POINTS (a count
 /// is 0 or too small),
 /// NON_FINITE_INPUT (names the array and point index), CALLBACK_FAILED, BUSY, OUT_OF_MEMORY
 /// (the copies of the clouds or the registration's working set, about 450 bytes per source

@@ -195,19 +195,42 @@ pub(crate) fn require_finite(what: &str, points: &[Point]) -> Result<(), Error> 
 
 /// Clouds whose spreads (RMS distance of the points from their centroid) differ this many times
 /// are checked for a scale at which they cannot meet ([`require_meeting_scales`]).
-const SCALE_GAP: f64 = 100.0;
+const SCALE_GAP: f64 = 20.0;
+/// Spreads this many times apart are checked for a smaller cloud that fits between two points
+/// of the larger (a few points close together are a legitimate source below it).
+const FIT_GAP: f64 = 100.0;
+/// A smaller cloud that reaches no further than this many of the larger cloud's spacings from
+/// its centre, and is sampled as finely for its size as the larger one, is a scaled copy.
+const COPY_REACH: f64 = 10.0;
+/// Resolutions (spacing over spread) within this factor of each other count as the same.
+const COPY_RESOLUTION: f64 = 3.0;
 /// Points a cloud's spread is taken over (evenly strided, as the prepared target's).
 const SPREAD_SAMPLE: usize = 1024;
 /// Source points whose nearest other source point gives the source's spacing, when needed.
 const SPACING_SAMPLE: usize = 32;
 
-/// Refuses clouds that cannot meet at any pose: every point of the smaller lies within half a
-/// point spacing of its centre, so the whole of it fits between two neighbouring points of the
-/// other, as a cloud in millimetres against one in metres does. Checked only when the spreads
-/// differ [`SCALE_GAP`] times; the target's spacing is asked for, and the source's computed,
-/// only then. The target's points are in units `target_length` times the caller's (the
-/// prepared target's); the message speaks the caller's. Error: [`Error::InvalidArgument`]
-/// naming both scales.
+/// One cloud as [`require_meeting_scales`] compares it, in the caller's units.
+struct Scale {
+    role: &'static str,
+    spread: f64,
+    radius: f64,
+    spacing: f64,
+}
+
+/// Refuses clouds that cannot meet at any pose because they are in different units. Checked
+/// only when the spreads differ [`SCALE_GAP`] times; the spacings and the smaller cloud's
+/// radius are computed (the target's spacing asked for) only then. Two cases:
+/// - the spreads differ [`FIT_GAP`] times and every point of the smaller cloud lies within half
+///   a spacing of its centre: the whole of it fits between two neighbouring points of the other
+///   (millimetres against metres);
+/// - the smaller cloud reaches only [`COPY_REACH`] of the larger's spacings, and its points lie
+///   as close for its size as the larger's do ([`COPY_RESOLUTION`]): the two are the same kind
+///   of cloud at two scales (centimetres or inches against metres). A small piece of a scene
+///   is sampled far more finely for its size than the scene, and a dense small object in a
+///   sparse map covers many of the map's spacings, so neither is refused.
+///
+/// The target's points are in units `target_length` times the caller's (the prepared target's);
+/// the message speaks the caller's. Error: [`Error::InvalidArgument`] naming both scales.
 pub(crate) fn require_meeting_scales(
     source: &[Point],
     target: &[Point],
@@ -216,24 +239,58 @@ pub(crate) fn require_meeting_scales(
 ) -> Result<(), Error> {
     let source_spread = spread(source);
     let target_spread = target_length * spread(target);
-    let refusal = |small: &str, radius: f64, large: &str, spacing: f64| {
-        Error::InvalidArgument(format!(
-            "every {small} point lies within {radius:.3e} of the {small}'s centre, and the {large}'s \
-             points lie {spacing:.3e} apart: the whole {small} fits between two {large} points, so \
-             no pose can match it; are both clouds in the same units (millimetres against metres)?"
-        ))
+    let source_is_smaller = source_spread < target_spread;
+    let (small_spread, large_spread) = if source_is_smaller {
+        (source_spread, target_spread)
+    } else {
+        (target_spread, source_spread)
     };
-    if source_spread > 0.0 && target_spread >= SCALE_GAP * source_spread {
-        let (radius, spacing) = (radius(source), target_spacing());
-        if 2.0 * radius < spacing {
-            return Err(refusal("source", radius, "target", spacing));
-        }
+    if !(small_spread > 0.0 && large_spread >= SCALE_GAP * small_spread) {
+        return Ok(());
     }
-    if target_spread > 0.0 && source_spread >= SCALE_GAP * target_spread {
-        let (radius, spacing) = (target_length * radius(target), sampled_spacing(source));
-        if 2.0 * radius < spacing {
-            return Err(refusal("target", radius, "source", spacing));
-        }
+    let source = Scale {
+        role: "source",
+        spread: source_spread,
+        radius: radius(source),
+        spacing: sampled_spacing(source),
+    };
+    let target = Scale {
+        role: "target",
+        spread: target_spread,
+        radius: target_length * radius(target),
+        spacing: target_spacing(),
+    };
+    let (small, large) = if source_is_smaller {
+        (source, target)
+    } else {
+        (target, source)
+    };
+    let (role, other) = (small.role, large.role);
+    if large_spread >= FIT_GAP * small_spread && 2.0 * small.radius < large.spacing {
+        return Err(Error::InvalidArgument(format!(
+            "every {role} point lies within {:.3e} of the {role}'s centre, and the {other}'s \
+             points lie {:.3e} apart: the whole {role} fits between two {other} points, so \
+             no pose can match it; are both clouds in the same units (millimetres against metres)?",
+            small.radius, large.spacing
+        )));
+    }
+    let resolutions = (small.spacing / small.spread) / (large.spacing / large.spread);
+    if small.radius < COPY_REACH * large.spacing
+        && (1.0 / COPY_RESOLUTION..=COPY_RESOLUTION).contains(&resolutions)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "the {role} spreads {:.0}x less than the {other} ({:.3e} against {:.3e}) and its \
+             points lie {:.0}x closer ({:.3e} against {:.3e} apart): the same kind of cloud at \
+             two scales, the whole {role} within {:.1} of the {other}'s spacings; are both \
+             clouds in the same units (centimetres or inches against metres)?",
+            large.spread / small.spread,
+            small.spread,
+            large.spread,
+            large.spacing / small.spacing,
+            small.spacing,
+            large.spacing,
+            small.radius / large.spacing
+        )));
     }
     Ok(())
 }
@@ -393,17 +450,62 @@ mod tests {
         // The other way round: the target (radius 1.8e-4 in the caller's units, held at 1/1000)
         // between two points of a source of 100 points over 1000 (spacing 10).
         let held = segment(10, 0.4, 0.0);
-        let error =
-            require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 1e-3, || panic!("asked")).unwrap_err();
+        let error = require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 1e-3, || 4e-5).unwrap_err();
         assert!(
             matches!(&error, Error::InvalidArgument(m) if m.starts_with("every target point lies within 1.800e-4")
                 && m.contains("the source's points lie 1.000e1 apart")),
             "{error:?}"
         );
-        // Held at 30 times: its radius (5.4) reaches past half a source spacing.
-        require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 30.0, || panic!("asked")).unwrap();
+        // Held at 30 times: its radius (5.4) reaches past half a source spacing, and its 10
+        // points lie 10 times as far apart for its size as the source's 100.
+        require_meeting_scales(&segment(100, 1000.0, 0.0), &held, 30.0, || 1.2).unwrap();
         // No extent to compare: left to the other rules.
         require_meeting_scales(&[[1.0; 3]; 5], &target, 1.0, || panic!("asked")).unwrap();
+    }
+
+    /// `n` × `n` points evenly over a square of side `side` in the xy plane.
+    fn grid(n: usize, side: f64) -> Vec<Point> {
+        let step = side / (n - 1) as f64;
+        (0..n * n)
+            .map(|k| [step * (k % n) as f64, step * (k / n) as f64, 0.0])
+            .collect()
+    }
+
+    #[test]
+    fn a_scaled_copy_is_refused_and_a_piece_or_a_small_cloud_is_not() {
+        // The target: 60 × 60 points over 1 (spacing 1/59, spread 0.41, radius 0.71).
+        let target = grid(60, 1.0);
+        let spacing = 1.0 / 59.0;
+        let within = |source: &[Point]| require_meeting_scales(source, &target, 1.0, || spacing);
+        // The same square at 25 times its size: the target reaches 1.7 of its spacings.
+        let error = within(&grid(60, 25.0)).unwrap_err();
+        assert!(
+            matches!(&error, Error::InvalidArgument(m) if m.starts_with("the target spreads 25x less than the source")
+                && m.contains("points lie 25x closer") && m.contains("within 1.7 of the source's spacings")
+                && m.contains("same units")),
+            "{error:?}"
+        );
+        // Either way round, and held in other units.
+        let held: Vec<Point> = target.iter().map(|p| p.map(|c| c * 1e3)).collect();
+        let error = require_meeting_scales(&grid(60, 1.0 / 25.0), &held, 1e-3, || spacing).unwrap_err();
+        assert!(
+            matches!(&error, Error::InvalidArgument(m) if m.starts_with("the source spreads 25x less than the target")),
+            "{error:?}"
+        );
+        // At 50 times with 2.5 times as many points a side: sampled 2.5 times more finely for its
+        // size, within COPY_RESOLUTION (the target reaches 2.1 of its spacings).
+        within(&grid(150, 50.0)).unwrap_err();
+        // Ten times as many points a side at 25 times: sampled 10 times more finely for its size
+        // (the target reaches 17 of its spacings).
+        within(&grid(600, 25.0)).unwrap();
+        // A piece of the target's own sampling (3 × 3 points): far coarser for its size.
+        within(&grid(3, 2.0 * spacing)).unwrap();
+        // Three points far apart against the square (34 times its spread), and three points
+        // closer than its spacing (88 times less): both under FIT_GAP, neither a copy.
+        within(&[[0.0; 3], [30.0, 0.0, 0.0], [0.0, 30.0, 0.0]]).unwrap();
+        within(&[[0.0; 3], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0]]).unwrap();
+        // At 10 times the spreads are within SCALE_GAP: nothing is measured.
+        require_meeting_scales(&grid(60, 10.0), &target, 1.0, || panic!("asked")).unwrap();
     }
 
     /// Copies are grouped (−0.0 equals 0.0), dropped points leave whole locations out, and
