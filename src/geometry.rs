@@ -44,7 +44,7 @@ pub fn first_non_finite(points: &[Point]) -> Option<usize> {
 }
 
 /// The corners (smallest and largest coordinate on each axis) of the points' bounding box.
-pub fn bounding_box(points: &[Point]) -> (Vector3<f64>, Vector3<f64>) {
+pub fn bounding_box<'a>(points: impl IntoIterator<Item = &'a Point>) -> (Vector3<f64>, Vector3<f64>) {
     let mut lo = Vector3::repeat(f64::INFINITY);
     let mut hi = Vector3::repeat(f64::NEG_INFINITY);
     for p in points {
@@ -56,7 +56,7 @@ pub fn bounding_box(points: &[Point]) -> (Vector3<f64>, Vector3<f64>) {
 }
 
 /// The length of the diagonal of the points' bounding box (success bounds are a share of it).
-pub fn bounding_box_diagonal(points: &[Point]) -> f64 {
+pub fn bounding_box_diagonal<'a>(points: impl IntoIterator<Item = &'a Point>) -> f64 {
     let (lo, hi) = bounding_box(points);
     (hi - lo).norm()
 }

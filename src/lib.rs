@@ -67,6 +67,7 @@ mod point;
 mod registration;
 mod sie;
 pub mod synthetic;
+mod voxel;
 
 pub use cost::CostFunction;
 pub use error::Error;

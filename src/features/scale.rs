@@ -10,6 +10,7 @@ use crate::geometry::{bounding_box, dot};
 use crate::nn::NearestNeighbours;
 use crate::parallel::Workers;
 use crate::point::Point;
+use crate::voxel;
 
 /// Keypoints a cloud is aimed to keep: enough for a few hundred mutual matches, few enough that
 /// brute-force matching of 33-bin descriptors stays a fraction of a second.
@@ -81,12 +82,10 @@ fn voxel_for(points: &[Point], index: &NearestNeighbours, max_keypoints: usize) 
     let floor = if spacing > 0.0 { spacing } else { diagonal * 1e-6 };
     let mut voxel = (diagonal / (TARGET_KEYPOINTS as f64).sqrt()).max(floor);
     for _ in 0..6 {
-        let count = occupied_voxels(points, voxel);
-        let ratio = count as f64 / TARGET_KEYPOINTS as f64;
-        if (0.8..=1.25).contains(&ratio) {
+        let Some(next) = voxel::next_edge(voxel, occupied_voxels(points, voxel), TARGET_KEYPOINTS) else {
             break;
-        }
-        let next = (voxel * ratio.sqrt().clamp(0.5, 2.0)).max(floor);
+        };
+        let next = next.max(floor);
         if next == voxel {
             break;
         }
@@ -121,14 +120,10 @@ fn spacing(points: &[Point], index: &NearestNeighbours) -> f64 {
     *distances.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
-fn voxel_key(p: &Point, voxel: f64) -> [i64; 3] {
-    p.map(|c| (c / voxel).floor() as i64)
-}
-
 fn occupied_voxels(points: &[Point], voxel: f64) -> usize {
     let mut seen = std::collections::HashSet::with_capacity(4 * TARGET_KEYPOINTS);
     for p in points {
-        seen.insert(voxel_key(p, voxel));
+        seen.insert(voxel::key(p, voxel));
     }
     seen.len()
 }
@@ -146,7 +141,7 @@ impl Keypoints {
         let mut slots: HashMap<[i64; 3], usize> = HashMap::new();
         let mut sums: Vec<(Vector3<f64>, usize)> = Vec::new();
         for p in points {
-            let slot = *slots.entry(voxel_key(p, scale.voxel)).or_insert_with(|| {
+            let slot = *slots.entry(voxel::key(p, scale.voxel)).or_insert_with(|| {
                 sums.push((Vector3::zeros(), 0));
                 sums.len() - 1
             });

@@ -213,7 +213,6 @@ const SPACING_SAMPLE: usize = 32;
 struct Scale {
     role: &'static str,
     spread: f64,
-    radius: f64,
     spacing: f64,
 }
 
@@ -248,16 +247,19 @@ pub(crate) fn require_meeting_scales(
     if !(small_spread > 0.0 && large_spread >= SCALE_GAP * small_spread) {
         return Ok(());
     }
+    let small_radius = if source_is_smaller {
+        radius(source)
+    } else {
+        target_length * radius(target)
+    };
     let source = Scale {
         role: "source",
         spread: source_spread,
-        radius: radius(source),
         spacing: sampled_spacing(source),
     };
     let target = Scale {
         role: "target",
         spread: target_spread,
-        radius: target_length * radius(target),
         spacing: target_spacing(),
     };
     let (small, large) = if source_is_smaller {
@@ -266,16 +268,16 @@ pub(crate) fn require_meeting_scales(
         (target, source)
     };
     let (role, other) = (small.role, large.role);
-    if large_spread >= FIT_GAP * small_spread && 2.0 * small.radius < large.spacing {
+    if large_spread >= FIT_GAP * small_spread && 2.0 * small_radius < large.spacing {
         return Err(Error::InvalidArgument(format!(
             "every {role} point lies within {:.3e} of the {role}'s centre, and the {other}'s \
              points lie {:.3e} apart: the whole {role} fits between two {other} points, so \
              no pose can match it; are both clouds in the same units (millimetres against metres)?",
-            small.radius, large.spacing
+            small_radius, large.spacing
         )));
     }
     let resolutions = (small.spacing / small.spread) / (large.spacing / large.spread);
-    if small.radius < COPY_REACH * large.spacing
+    if small_radius < COPY_REACH * large.spacing
         && (1.0 / COPY_RESOLUTION..=COPY_RESOLUTION).contains(&resolutions)
     {
         return Err(Error::InvalidArgument(format!(
@@ -289,7 +291,7 @@ pub(crate) fn require_meeting_scales(
             large.spacing / small.spacing,
             small.spacing,
             large.spacing,
-            small.radius / large.spacing
+            small_radius / large.spacing
         )));
     }
     Ok(())

@@ -6,9 +6,10 @@
 
 use std::collections::HashMap;
 
-use crate::geometry::is_finite;
+use crate::geometry::{bounding_box_diagonal, is_finite};
 use crate::point::Point;
 use crate::registration::result::RegistrationResult;
+use crate::voxel;
 
 /// Frames are thinned to about this many points …
 pub(crate) const THINNED_POINTS: usize = 16_384;
@@ -16,8 +17,6 @@ pub(crate) const THINNED_POINTS: usize = 16_384;
 /// is registered whole, its far walls and near floor each fixing part of the pose; a LiDAR
 /// sweep (60–130 k) is thinned.
 const THIN_ABOVE: usize = 2 * THINNED_POINTS;
-/// The voxel is settled when the count kept lies within this factor of [`THINNED_POINTS`].
-const COUNT_TOLERANCE: f64 = 1.25;
 /// Voxel sizes tried at most per frame (each a pass over the frame).
 const MAX_VOXEL_TRIES: usize = 6;
 /// A frame point not registered at all (a missing return the config skips).
@@ -42,31 +41,20 @@ impl ThinnedFrame {
         if count <= THIN_ABOVE {
             return None;
         }
-        let (lo, hi) = frame.iter().filter(|p| valid(p)).fold(
-            ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-            |(lo, hi), p| {
-                (
-                    std::array::from_fn(|a| lo[a].min(p[a])),
-                    std::array::from_fn(|a| hi[a].max(p[a])),
-                )
-            },
-        );
-        let diagonal = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+        let diagonal = bounding_box_diagonal(frame.iter().filter(|p| valid(p)));
         if !(diagonal.is_finite() && diagonal > 0.0) {
             return None;
         }
         // A surface keeps a count that falls as 1/voxel²: a few corrections from a guess.
-        let mut voxel = previous_voxel
+        let voxel = previous_voxel
             .filter(|v| v.is_finite() && *v > 0.0)
             .unwrap_or(diagonal / (THINNED_POINTS as f64).sqrt());
         let mut thinned = Self::at(frame, &valid, voxel);
         for _ in 1..MAX_VOXEL_TRIES {
-            let ratio = thinned.points.len() as f64 / THINNED_POINTS as f64;
-            if (1.0 / COUNT_TOLERANCE..=COUNT_TOLERANCE).contains(&ratio) {
+            let Some(next) = voxel::next_edge(thinned.voxel, thinned.points.len(), THINNED_POINTS) else {
                 break;
-            }
-            voxel *= ratio.sqrt().clamp(0.5, 2.0);
-            thinned = Self::at(frame, &valid, voxel);
+            };
+            thinned = Self::at(frame, &valid, next);
         }
         Some(thinned)
     }
@@ -80,8 +68,7 @@ impl ThinnedFrame {
                 if !valid(p) {
                     return NOT_KEPT;
                 }
-                let key = p.map(|c| (c / voxel).floor() as i64);
-                *slots.entry(key).or_insert_with(|| {
+                *slots.entry(voxel::key(p, voxel)).or_insert_with(|| {
                     points.push(*p);
                     (points.len() - 1) as u32
                 })
@@ -148,13 +135,14 @@ mod tests {
         let frame = corner(200);
         let thinned = ThinnedFrame::of(&frame, true, None).expect("120 000 points are thinned");
         let kept = thinned.points.len();
-        let settled = THINNED_POINTS as f64 / COUNT_TOLERANCE..=THINNED_POINTS as f64 * COUNT_TOLERANCE;
+        let tolerance = voxel::COUNT_TOLERANCE;
+        let settled = THINNED_POINTS as f64 / tolerance..=THINNED_POINTS as f64 * tolerance;
         assert!(
             settled.contains(&(kept as f64)),
             "{kept} kept at voxel {}",
             thinned.voxel
         );
-        let key = |p: &Point| p.map(|c| (c / thinned.voxel).floor() as i64);
+        let key = |p: &Point| voxel::key(p, thinned.voxel);
         for (p, &k) in frame.iter().zip(&thinned.kept_for) {
             if !is_finite(p) || *p == [0.0; 3] {
                 assert_eq!(k, NOT_KEPT, "{p:?}");
