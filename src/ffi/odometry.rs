@@ -19,13 +19,19 @@ pub enum sie_frame_status {
     /// The first usable frame: its sensor is the world frame (the pose written is the
     /// identity).
     First = 0,
-    /// Registered onto the last accepted frame with a GOOD verdict: its pose was written.
+    /// Registered onto the last accepted frame with a GOOD verdict, or bridged over the
+    /// NOT_GOOD frame just before it (see NOT_GOOD) GOOD: its pose was written.
     Accepted = 1,
     /// Bit for bit the last accepted frame again (a driver that sent it twice): ignored,
     /// nothing written but this status.
     Repeated = 2,
     /// Registered, but the verdict is not GOOD: ignored (the context holds the result, whose
-    /// summary says why); the pose was not written.
+    /// summary says why); the pose was not written. When it is the frame after the last
+    /// accepted one and failed GOOD only for its conditioning, a rival start or its settling,
+    /// the next frame that does not register onto the last accepted one registers onto this
+    /// one, and is taken (ACCEPTED or LOOSE, its pose through this frame's) when that result
+    /// is GOOD or loose and its motion agrees with this frame's (constant velocity); the
+    /// context then holds that registration.
     NotGood = 3,
     /// Registered GOOD (or LOOSE), but, once a motion has been measured, further from the
     /// constant-velocity guess than the frame's points are from its sensor (median range): no
@@ -33,7 +39,8 @@ pub enum sie_frame_status {
     /// result).
     Jumped = 4,
     /// Registered DOUBTFUL for its conditioning alone (every other check of GOOD passed, no
-    /// start ended elsewhere), a motion already measured, and within tracking's reach: the
+    /// start ended elsewhere), a motion already measured (or bridged over a NOT_GOOD frame
+    /// whose motion it agrees with), and within tracking's reach: the
     /// data fix some direction of the pose weakly (the summary names it). Accepted as ACCEPTED is, its pose written: the next frames see the same view,
     /// and setting them aside would register each further from its keyframe.
     Loose = 5,

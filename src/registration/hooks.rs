@@ -30,6 +30,14 @@ impl<'a> Hooks<'a> {
             observer: None,
         }
     }
+
+    /// The same callbacks, lent for one more registration.
+    pub(crate) fn reborrow(&mut self) -> Hooks<'_> {
+        Hooks {
+            noise: self.noise.as_deref_mut().map(|n| n as &mut dyn NoiseScales),
+            observer: self.observer.as_deref_mut().map(|o| o as &mut Observer<'_>),
+        }
+    }
 }
 
 /// Runs `register` in changed units with an observer that sees every trace entry in the

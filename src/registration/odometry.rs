@@ -9,6 +9,14 @@
 //! camera whose yaw rests on far, noisy walls), and setting them aside would register each
 //! next frame further from its keyframe until none registers.
 //!
+//! A frame set aside right after the keyframe whose result failed GOOD only for its
+//! conditioning, a rival start or its settling, its own start having won, can be bridged over:
+//! the next frame that does not register onto the keyframe registers onto that nearer frame,
+//! and is taken when that result is GOOD or loose and its motion agrees with the set-aside
+//! frame's (constant velocity). Without it, a first motion with a rival left no motion
+//! measured and the keyframe behind for good (a depth camera at 12° a frame: 29 of 29 frames
+//! set aside).
+//!
 //! A frame of more than twice `thinning::THINNED_POINTS` valid points (a LiDAR sweep) is
 //! registered on about that many of them, one per voxel of a size chosen from the frame; its
 //! target is still the whole last accepted frame, and its result names every frame point, each
@@ -25,17 +33,19 @@ use crate::point::{NonFinite, Point};
 use crate::registration::clouds::register_clouds_to;
 use crate::registration::config::RegistrationConfig;
 use crate::registration::hooks::Hooks;
-use crate::registration::result::{Quality, RegistrationResult, Verdict};
+use crate::registration::result::{Quality, RegistrationResult, StartKind, StopReason, Verdict};
 use crate::registration::target::{PrepareOptions, PreparedTarget};
 use crate::registration::thinning::ThinnedFrame;
-use crate::registration::verdict::{MIN_CONDITIONING, verdict_with};
+use crate::registration::verdict::{MIN_CONDITIONING, verdict_if_settled, verdict_with};
 
 /// What became of one frame given to [`Odometry::register_frame`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FrameStatus {
     /// The first usable frame: it fixes the world frame (its pose is the odometry's start).
     First,
-    /// Registered onto the last accepted frame with a GOOD verdict; its pose is the new one.
+    /// Registered onto the last accepted frame with a GOOD verdict, or bridged over the frame
+    /// set aside just before it (see `NotGood`) with a GOOD verdict there; its pose is the new
+    /// one.
     Accepted,
     /// Bit for bit the last accepted frame again (a driver that sent it twice): ignored.
     Repeated,
@@ -45,7 +55,14 @@ pub enum FrameStatus {
     InputRejected,
     /// Registered, but the verdict is not GOOD (`FrameOutcome::result` has it) and the frame
     /// is not `Loose`: the pose is not trusted and the frame is ignored (a jump, a frame from
-    /// elsewhere, a close call between two poses, a run that did not settle).
+    /// elsewhere, a close call between two poses, a run that did not settle). When it is the
+    /// frame after the last accepted one and failed GOOD only for its conditioning, a rival
+    /// start or its settling (the start from the guess won), the next frame may bridge over it:
+    /// if that frame does not register onto the last accepted one, it registers onto this
+    /// one, and is taken (`Accepted` or `Loose`, its pose through this frame's) when that
+    /// result is GOOD or loose with no rival and its motion agrees with this frame's to half
+    /// a frame's motion; a bridge whose motion agrees but only slid to its cap passes the turn
+    /// to the frame after.
     NotGood,
     /// Registered GOOD (or `Loose`), but, once a motion has been measured, further from the
     /// constant-velocity guess than the frame's points are from its sensor (median range):
@@ -56,7 +73,8 @@ pub enum FrameStatus {
     /// check of GOOD passed: an inlier peak, a settled run, σ within the target's spacing; the
     /// scaled-source fit is tried on GOOD results only, so not on these), no
     /// start of its search ended elsewhere (`Quality::margin` infinite), a motion already
-    /// measured and the result within tracking's reach as `Jumped` measures it: the data fix
+    /// measured (or, for a bridge over a `NotGood` frame, that frame's motion agreeing with
+    /// it) and the result within tracking's reach as `Jumped` measures it: the data fix
     /// some direction of the pose weakly (`Quality::loose_direction` names it when the
     /// surfaces do). Accepted as `Accepted` is (the pose is the best the frame gives; the next
     /// frames see the same view), and said apart so the caller can weigh it. A loose result
@@ -79,13 +97,33 @@ pub struct FrameOutcome {
     /// accepted pose. `None` for the first frame and frames refused before it.
     pub predicted_pose: Option<Matrix4<f64>>,
     /// The frame's registration onto the last accepted frame (`Accepted`, `Loose`, `NotGood`
-    /// and `Jumped`). Its `probabilities` and `correspondences` have one entry per frame point,
+    /// and `Jumped`), or, for a frame taken by a bridge, onto the frame set aside before it.
+    /// Its `probabilities` and `correspondences` have one entry per frame point,
     /// also when the frame was registered thinned (a point left out takes those of the point
     /// kept in its voxel; a skipped point 0 and -1); `inlier_fraction` and the trace count the
     /// points registered.
     pub result: Option<RegistrationResult>,
     /// Why an `InputRejected` frame was refused.
     pub error: Option<Error>,
+}
+
+/// A bridge over a set-aside frame needs the next motion within this fraction of the set-aside
+/// frame's own motion from it (each as `Keyframe::displacement` measures it). On a depth
+/// camera's loop at 12° a frame right consecutive motions differ by 0.17 of one; a set-aside
+/// pose off by more than half a frame's motion makes the next motion disagree.
+const BRIDGE_AGREEMENT: f64 = 0.5;
+
+/// The frame just set aside, when its registration was right in every check the odometry
+/// makes but its conditioning, its margin over a rival start and its settling (`bridgeable`),
+/// from the start at its guess: the next frame, if it does not register onto the keyframe, may
+/// register onto this nearer frame instead (`Odometry::bridge`).
+struct SetAside {
+    frame: Keyframe,
+    /// Where its registrations put it, T_keyframe_frame (doubtful, not yet taken).
+    motion: Matrix4<f64>,
+    /// Its own one frame's motion (the last link of `motion`): the next frame's guess, and
+    /// what the next motion must agree with.
+    step: Matrix4<f64>,
 }
 
 /// The last accepted frame, prepared as the next frame's target.
@@ -137,6 +175,8 @@ pub struct Odometry {
     frames_since_accepted: u32,
     /// The voxel the last thinned frame was thinned at (the next frame's first try).
     thinning_voxel: Option<f64>,
+    /// The frame before this one, when it was set aside but may be bridged over.
+    set_aside: Option<SetAside>,
 }
 
 impl Odometry {
@@ -153,6 +193,7 @@ impl Odometry {
             velocity: None,
             frames_since_accepted: 0,
             thinning_voxel: None,
+            set_aside: None,
         })
     }
 
@@ -192,6 +233,7 @@ impl Odometry {
     /// A frame that never reached [`Odometry::register_frame`] (the driver dropped it, or its
     /// input could not be read): the next frame's guess moves one frame further.
     pub fn skip_frame(&mut self) {
+        self.set_aside = None;
         if self.keyframe.is_some() {
             self.frames_since_accepted = self.frames_since_accepted.saturating_add(1);
         }
@@ -199,7 +241,7 @@ impl Odometry {
 
     /// Registers the next frame (points in its sensor's frame). Input the registration refuses
     /// is a status, not an error: the odometry goes on as if the frame had not come.
-    pub fn register_frame(&mut self, frame: &[Point], hooks: Hooks<'_>) -> FrameOutcome {
+    pub fn register_frame(&mut self, frame: &[Point], mut hooks: Hooks<'_>) -> FrameOutcome {
         let fingerprint = fingerprint_of(frame);
         let Some(keyframe) = &self.keyframe else {
             return match Keyframe::new(frame, fingerprint, &self.options) {
@@ -213,6 +255,7 @@ impl Odometry {
         if keyframe.fingerprint == fingerprint {
             return outcome(FrameStatus::Repeated, None, Some(self.pose), None, None);
         }
+        let set_aside = self.set_aside.take();
         let first_since_accepted = self.frames_since_accepted == 0;
         let guess = self.guess();
         let predicted = self.predicted_pose();
@@ -223,34 +266,152 @@ impl Odometry {
         let thinned = (!refused_as_given)
             .then(|| ThinnedFrame::of(frame, self.config.skip_origin, self.thinning_voxel))
             .flatten();
-        let registered = thinned.as_ref().map_or(frame, |t| &t.points);
-        let result = match register_clouds_to(registered, &keyframe.target, Some(&guess), &self.config, hooks)
-        {
-            Ok(mut result) => {
-                if let Some(thinned) = &thinned {
-                    self.thinning_voxel = Some(thinned.voxel);
-                    thinned.spread_to_frame(&mut result);
-                }
-                result
-            }
+        let result = match register_frame_onto(
+            frame,
+            thinned.as_ref(),
+            &keyframe.target,
+            &guess,
+            &self.config,
+            hooks.reborrow(),
+        ) {
+            Ok(result) => result,
             Err(error) => {
                 self.skip_frame();
                 return outcome(FrameStatus::InputRejected, None, predicted, None, Some(error));
             }
         };
-        let accepted_as = match result.quality.verdict {
-            Verdict::Good => FrameStatus::Accepted,
-            _ if self.velocity.is_some() && loose_only(&result) => FrameStatus::Loose,
-            _ => {
-                self.skip_frame();
-                return outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
-            }
-        };
-        if self.velocity.is_some() && keyframe.displacement(&result.transform, &guess) > keyframe.median_range
-        {
-            self.skip_frame();
-            return outcome(FrameStatus::Jumped, None, predicted, Some(result), None);
+        if let Some(thinned) = &thinned {
+            self.thinning_voxel = Some(thinned.voxel);
         }
+        let taken_as = match result.quality.verdict {
+            Verdict::Good => Some(FrameStatus::Accepted),
+            _ if self.velocity.is_some() && loose_only(&result) => Some(FrameStatus::Loose),
+            _ => None,
+        };
+        let within_reach = self.velocity.is_none()
+            || keyframe.displacement(&result.transform, &guess) <= keyframe.median_range;
+        let status = match taken_as {
+            Some(status) if within_reach => {
+                // The motion over a gap of several frames is no per-frame velocity.
+                let velocity = first_since_accepted.then_some(result.transform);
+                let taken = Taken {
+                    status,
+                    motion: result.transform,
+                    result,
+                };
+                return self.accept(frame, fingerprint, taken, velocity, predicted);
+            }
+            Some(_) => FrameStatus::Jumped,
+            None => FrameStatus::NotGood,
+        };
+        let mut next_set_aside = None;
+        if let Some(over) = set_aside
+            && result.stop_reason != StopReason::Cancelled
+        {
+            match self.bridge(over, frame, thinned.as_ref(), fingerprint, hooks) {
+                Bridge::Taken(taken) => {
+                    let velocity = Some(taken.result.transform);
+                    return self.accept(frame, fingerprint, taken, velocity, predicted);
+                }
+                Bridge::SetAsideAgain(again) => next_set_aside = Some(again),
+                Bridge::Broken => {}
+                Bridge::Cancelled(cancelled) => {
+                    self.skip_frame();
+                    return outcome(FrameStatus::NotGood, None, predicted, Some(cancelled), None);
+                }
+            }
+        }
+        self.skip_frame();
+        if next_set_aside.is_none()
+            && status == FrameStatus::NotGood
+            && first_since_accepted
+            && within_reach
+            && bridgeable(&result)
+        {
+            // A frame that cannot be prepared as a target is simply not bridged over.
+            next_set_aside = Keyframe::new(frame, fingerprint, &self.options)
+                .ok()
+                .map(|frame| SetAside {
+                    frame,
+                    motion: result.transform,
+                    step: result.transform,
+                });
+        }
+        self.set_aside = next_set_aside;
+        outcome(status, None, predicted, Some(result), None)
+    }
+
+    /// Registers a frame that did not register onto the keyframe onto the frame just set aside
+    /// (`over`), from the set-aside frame's own motion. The frame is taken when that
+    /// registration is GOOD, or loose with no rival start, and its motion agrees with the
+    /// set-aside one's (within [`BRIDGE_AGREEMENT`]): two consecutive motions then agree, and the
+    /// set-aside pose is taken as the bridge's first half. A motion that agrees but is itself
+    /// only `bridgeable` (a run that slid along the loose direction to its cap) makes this
+    /// frame the next one to bridge over.
+    fn bridge(
+        &mut self,
+        over: SetAside,
+        frame: &[Point],
+        thinned: Option<&ThinnedFrame>,
+        fingerprint: u64,
+        hooks: Hooks<'_>,
+    ) -> Bridge {
+        let Ok(result) = register_frame_onto(
+            frame,
+            thinned,
+            &over.frame.target,
+            &over.step,
+            &self.config,
+            hooks,
+        ) else {
+            return Bridge::Broken;
+        };
+        if result.stop_reason == StopReason::Cancelled {
+            return Bridge::Cancelled(result);
+        }
+        let disagreement = over.frame.displacement(&result.transform, &over.step);
+        if disagreement > BRIDGE_AGREEMENT * over.frame.displacement(&over.step, &Matrix4::identity()) {
+            return Bridge::Broken;
+        }
+        let motion = orthonormalised(&(over.motion * result.transform));
+        match result.quality.verdict {
+            Verdict::Good => Bridge::Taken(Taken {
+                status: FrameStatus::Accepted,
+                motion,
+                result,
+            }),
+            _ if loose_only(&result) => Bridge::Taken(Taken {
+                status: FrameStatus::Loose,
+                motion,
+                result,
+            }),
+            _ if bridgeable(&result) => match Keyframe::new(frame, fingerprint, &self.options) {
+                Ok(frame) => Bridge::SetAsideAgain(SetAside {
+                    frame,
+                    motion,
+                    step: result.transform,
+                }),
+                Err(_) => Bridge::Broken,
+            },
+            _ => Bridge::Broken,
+        }
+    }
+
+    /// Takes the frame: its motion moves the pose, and it becomes the keyframe; `velocity` is
+    /// its motion when that is one frame's (the next frames' guess), `None` to keep the last.
+    fn accept(
+        &mut self,
+        frame: &[Point],
+        fingerprint: u64,
+        taken: Taken,
+        velocity: Option<Matrix4<f64>>,
+        predicted: Option<Matrix4<f64>>,
+    ) -> FrameOutcome {
+        let Taken {
+            status,
+            motion,
+            result,
+        } = taken;
         // The frame passed its registration, so it has points a target can be built on; a
         // refusal here is memory, and the frame is then not accepted either.
         let next = match Keyframe::new(frame, fingerprint, &self.options) {
@@ -267,14 +428,73 @@ impl Odometry {
             }
         };
         self.keyframe = Some(next);
-        // The motion over a gap of several frames is no per-frame velocity: keep the last one.
-        if first_since_accepted {
-            self.velocity = Some(result.transform);
+        if velocity.is_some() {
+            self.velocity = velocity;
         }
         self.frames_since_accepted = 0;
-        self.pose = orthonormalised(&(self.pose * result.transform));
-        outcome(accepted_as, Some(self.pose), predicted, Some(result), None)
+        self.pose = orthonormalised(&(self.pose * motion));
+        outcome(status, Some(self.pose), predicted, Some(result), None)
     }
+}
+
+/// A frame to take: its status, its motion from the keyframe (T_keyframe_frame) and the
+/// registration behind it.
+struct Taken {
+    status: FrameStatus,
+    motion: Matrix4<f64>,
+    result: RegistrationResult,
+}
+
+/// What a bridge over a set-aside frame came to.
+enum Bridge {
+    /// The frame is taken.
+    Taken(Taken),
+    /// Not taken, but the next frame may bridge over this one.
+    SetAsideAgain(SetAside),
+    /// Nothing to bridge over any more.
+    Broken,
+    /// The caller's observer stopped the bridge's registration (this result).
+    Cancelled(RegistrationResult),
+}
+
+/// Registers `frame` (its thinned points when it was thinned) onto `target` from `guess`; the
+/// result names every frame point.
+fn register_frame_onto(
+    frame: &[Point],
+    thinned: Option<&ThinnedFrame>,
+    target: &PreparedTarget,
+    guess: &Matrix4<f64>,
+    config: &RegistrationConfig,
+    hooks: Hooks<'_>,
+) -> Result<RegistrationResult, Error> {
+    let registered = thinned.map_or(frame, |t| &t.points);
+    let mut result = register_clouds_to(registered, target, Some(guess), config, hooks)?;
+    if let Some(thinned) = thinned {
+        thinned.spread_to_frame(&mut result);
+    }
+    Ok(result)
+}
+
+/// Whether a result set aside may be bridged over by the next frame: the start from the
+/// tracking's guess won (a rival that beat the guess is another pose, not a loosely fixed one)
+/// and it would be GOOD but for its conditioning, a rival start and its settling (a run along a
+/// loose direction may slide to its cap; a cancelled or degenerate run is not bridged over).
+fn bridgeable(result: &RegistrationResult) -> bool {
+    let quality = &result.quality;
+    matches!(
+        result.stop_reason,
+        StopReason::Converged | StopReason::IterationLimit
+    ) && matches!(
+        result.search.start,
+        StartKind::InitialGuess | StartKind::WarmStart
+    ) && verdict_if_settled(
+        result,
+        &Quality {
+            conditioning: quality.conditioning.max(MIN_CONDITIONING),
+            margin: f64::INFINITY,
+            ..*quality
+        },
+    ) == Verdict::Good
 }
 
 /// Whether `result` would be GOOD but for its conditioning, with no start ended elsewhere (see

@@ -176,6 +176,15 @@ pub(crate) fn verdict(result: &RegistrationResult) -> Verdict {
 
 /// The verdict `result` would get with this quality evidence.
 pub(crate) fn verdict_with(result: &RegistrationResult, quality: &Quality) -> Verdict {
+    // A run stopped by its cap has not shown that it reached the pose the data hold.
+    match verdict_if_settled(result, quality) {
+        Verdict::Good if result.stop_reason == StopReason::IterationLimit => Verdict::Doubtful,
+        verdict => verdict,
+    }
+}
+
+/// The verdict `result` would get with this quality evidence had its run settled.
+pub(crate) fn verdict_if_settled(result: &RegistrationResult, quality: &Quality) -> Verdict {
     // NaN counts as no support.
     if quality.significance.is_nan() || quality.significance <= 0.0 {
         return Verdict::Unsupported;
@@ -185,10 +194,7 @@ pub(crate) fn verdict_with(result: &RegistrationResult, quality: &Quality) -> Ve
         .histograms
         .iter()
         .all(|h| h.peak_found || h.inlier.sigma == 0.0);
-    // A run stopped by its cap has not shown that it reached the pose the data hold.
-    let settled = result.stop_reason != StopReason::IterationLimit;
     let good = peak
-        && settled
         && quality.conditioning >= MIN_CONDITIONING
         && quality.margin >= MIN_MARGIN
         && quality.sigma_to_spacing <= 1.0
