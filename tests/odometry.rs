@@ -3,7 +3,7 @@
 
 use nalgebra::{Matrix4, Rotation3, Translation3};
 use sie::geometry::{rotation_angle, rotation_part, transform_point, translation_part};
-use sie::synthetic::{DepthCamera, depth_camera_trajectory, room_trajectory};
+use sie::synthetic::{DepthCamera, Trajectory, depth_camera_trajectory, room_trajectory};
 use sie::{FrameStatus, Hooks, MIN_CONDITIONING, NoiseModel, Odometry, Point, RegistrationConfig, Verdict};
 
 /// The trajectory's per-frame motion at 40 frames: about 21 cm and 9°.
@@ -16,6 +16,19 @@ fn error(estimate: &Matrix4<f64>, truth: &Matrix4<f64>) -> (f64, f64) {
         rotation_angle(&rotation_part(&e)).to_degrees(),
         translation_part(&e).norm(),
     )
+}
+
+/// A depth camera's frames, `loop_frames` a loop round the room, an odometry set for them, and
+/// the inverse of the first true pose (the odometry's world).
+fn depth_camera_odometry(loop_frames: usize, seed: u64) -> (Trajectory, Odometry, Matrix4<f64>) {
+    let trajectory = depth_camera_trajectory(loop_frames, &DepthCamera::kinect_like(), seed);
+    let config = RegistrationConfig {
+        noise: NoiseModel::QuadraticDepth,
+        ..Odometry::sensor_config()
+    };
+    let odometry = Odometry::new(config).unwrap();
+    let world = trajectory.poses[0].try_inverse().unwrap();
+    (trajectory, odometry, world)
 }
 
 #[test]
@@ -185,13 +198,7 @@ fn a_frame_that_jumps_is_set_aside() {
 #[test]
 fn a_loosely_fixed_view_is_taken_not_set_aside() {
     const DEPTH_FRAMES: usize = 25;
-    let trajectory = depth_camera_trajectory(100, &DepthCamera::kinect_like(), 11);
-    let config = RegistrationConfig {
-        noise: NoiseModel::QuadraticDepth,
-        ..Odometry::sensor_config()
-    };
-    let mut odometry = Odometry::new(config).unwrap();
-    let world = trajectory.poses[0].try_inverse().unwrap();
+    let (trajectory, mut odometry, world) = depth_camera_odometry(100, 11);
     let mut loose = 0;
     for (i, frame) in trajectory.frames.iter().take(DEPTH_FRAMES).enumerate() {
         let before = odometry.pose();
@@ -314,13 +321,7 @@ fn a_lidar_sweep_is_registered_thinned_and_its_result_speaks_for_every_point() {
 fn a_set_aside_first_motion_is_bridged_by_the_next_frame() {
     const LOOP_FRAMES: usize = 30;
     const DEPTH_FRAMES: usize = 20;
-    let trajectory = depth_camera_trajectory(LOOP_FRAMES, &DepthCamera::kinect_like(), 11);
-    let config = RegistrationConfig {
-        noise: NoiseModel::QuadraticDepth,
-        ..Odometry::sensor_config()
-    };
-    let mut odometry = Odometry::new(config).unwrap();
-    let world = trajectory.poses[0].try_inverse().unwrap();
+    let (trajectory, mut odometry, world) = depth_camera_odometry(LOOP_FRAMES, 11);
     let mut last_taken = 0;
     for (i, frame) in trajectory.frames.iter().take(DEPTH_FRAMES).enumerate() {
         let before = odometry.pose();
@@ -368,13 +369,7 @@ fn a_set_aside_first_motion_is_bridged_by_the_next_frame() {
 fn big_steps_set_frames_aside_rather_than_bridge_to_a_wrong_pose() {
     const LOOP_FRAMES: usize = 20;
     const DEPTH_FRAMES: usize = 7;
-    let trajectory = depth_camera_trajectory(LOOP_FRAMES, &DepthCamera::kinect_like(), 7);
-    let config = RegistrationConfig {
-        noise: NoiseModel::QuadraticDepth,
-        ..Odometry::sensor_config()
-    };
-    let mut odometry = Odometry::new(config).unwrap();
-    let world = trajectory.poses[0].try_inverse().unwrap();
+    let (trajectory, mut odometry, world) = depth_camera_odometry(LOOP_FRAMES, 7);
     for (i, frame) in trajectory.frames.iter().take(DEPTH_FRAMES).enumerate() {
         let outcome = odometry.register_frame(frame, Hooks::default());
         if let Some(pose) = outcome.pose {

@@ -480,7 +480,6 @@ fn register_frame_onto(
 /// and it would be GOOD but for its conditioning, a rival start and its settling (a run along a
 /// loose direction may slide to its cap; a cancelled or degenerate run is not bridged over).
 fn bridgeable(result: &RegistrationResult) -> bool {
-    let quality = &result.quality;
     matches!(
         result.stop_reason,
         StopReason::Converged | StopReason::IterationLimit
@@ -490,9 +489,8 @@ fn bridgeable(result: &RegistrationResult) -> bool {
     ) && verdict_if_settled(
         result,
         &Quality {
-            conditioning: quality.conditioning.max(MIN_CONDITIONING),
             margin: f64::INFINITY,
-            ..*quality
+            ..conditioning_met(&result.quality)
         },
     ) == Verdict::Good
 }
@@ -503,13 +501,15 @@ fn loose_only(result: &RegistrationResult) -> bool {
     let quality = &result.quality;
     quality.conditioning < MIN_CONDITIONING
         && quality.margin == f64::INFINITY
-        && verdict_with(
-            result,
-            &Quality {
-                conditioning: MIN_CONDITIONING,
-                ..*quality
-            },
-        ) == Verdict::Good
+        && verdict_with(result, &conditioning_met(quality)) == Verdict::Good
+}
+
+/// `quality` with its conditioning raised to the verdict's minimum where it falls short.
+fn conditioning_met(quality: &Quality) -> Quality {
+    Quality {
+        conditioning: quality.conditioning.max(MIN_CONDITIONING),
+        ..*quality
+    }
 }
 
 fn outcome(
