@@ -488,7 +488,10 @@ enum sie_frame_status
      * the next frame that does not register onto the last accepted one registers onto this
      * one, and is taken (ACCEPTED or LOOSE, its pose through this frame's) when that result
      * is GOOD or loose and its motion agrees with this frame's (constant velocity); the
-     * context then holds that registration.
+     * context then holds that registration. Before any motion is measured, that bridge goes
+     * first, and a first motion the guess did not give is looked for by the global stage
+     * (once, under the automatic starts): taken when GOOD, else set aside for the next frame
+     * to bridge over when it failed GOOD only for its conditioning or settling.
      */
     SIE_FRAME_STATUS_NOT_GOOD = 3,
     /**

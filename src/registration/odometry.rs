@@ -15,7 +15,11 @@
 //! and is taken when that result is GOOD or loose and its motion agrees with the set-aside
 //! frame's (constant velocity). Without it, a first motion with a rival left no motion
 //! measured and the keyframe behind for good (a depth camera at 12° a frame: 29 of 29 frames
-//! set aside).
+//! set aside). Before any motion is measured, the keyframe's guess is the identity, so the
+//! set-aside frame is tried first; and a first motion the identity does not give is looked for
+//! by the global stage (`Starts::Global`, once, under the default `Starts::Automatic`), whose
+//! result is taken when GOOD and set aside for a bridge when it fails GOOD only for its
+//! conditioning or settling (a depth camera at 18° a frame registers wrong from the identity).
 //!
 //! A frame of more than twice `thinning::THINNED_POINTS` valid points (a LiDAR sweep) is
 //! registered on about that many of them, one per voxel of a size chosen from the frame; its
@@ -31,8 +35,9 @@ use crate::geometry::{is_finite, length, orthonormalised, rotation_angle, rotati
 use crate::median::median;
 use crate::point::{NonFinite, Point};
 use crate::registration::clouds::register_clouds_to;
-use crate::registration::config::RegistrationConfig;
+use crate::registration::config::{RegistrationConfig, Starts};
 use crate::registration::hooks::Hooks;
+use crate::registration::irls::searches_starts;
 use crate::registration::result::{Quality, RegistrationResult, StartKind, StopReason, Verdict};
 use crate::registration::target::{PrepareOptions, PreparedTarget};
 use crate::registration::thinning::ThinnedFrame;
@@ -62,7 +67,10 @@ pub enum FrameStatus {
     /// one, and is taken (`Accepted` or `Loose`, its pose through this frame's) when that
     /// result is GOOD or loose with no rival and its motion agrees with this frame's to half
     /// a frame's motion; a bridge whose motion agrees but only slid to its cap passes the turn
-    /// to the frame after.
+    /// to the frame after. With no motion measured yet, the bridge goes first (its result is
+    /// then this status's when it passes the turn), and a first motion the guess did not give
+    /// is looked for by the global stage under `Starts::Automatic` (its result is this status's
+    /// when it may be bridged over: GOOD but for its conditioning or settling).
     NotGood,
     /// Registered GOOD (or `Loose`), but, once a motion has been measured, further from the
     /// constant-velocity guess than the frame's points are from its sensor (median range):
@@ -97,11 +105,12 @@ pub struct FrameOutcome {
     /// accepted pose. `None` for the first frame and frames refused before it.
     pub predicted_pose: Option<Matrix4<f64>>,
     /// The frame's registration onto the last accepted frame (`Accepted`, `Loose`, `NotGood`
-    /// and `Jumped`), or, for a frame taken by a bridge, onto the frame set aside before it.
-    /// Its `probabilities` and `correspondences` have one entry per frame point,
-    /// also when the frame was registered thinned (a point left out takes those of the point
-    /// kept in its voxel; a skipped point 0 and -1); `inlier_fraction` and the trace count the
-    /// points registered.
+    /// and `Jumped`), or, for a frame taken by a bridge (or a `NotGood` one whose bridge passed
+    /// the turn), onto the frame set aside before it; for a first motion found by the global
+    /// stage, that registration. Its `probabilities` and `correspondences` have one entry per
+    /// frame point, also when the frame was registered thinned (a point left out takes those of
+    /// the point kept in its voxel; a skipped point 0 and -1); `inlier_fraction` and the trace
+    /// count the points registered.
     pub result: Option<RegistrationResult>,
     /// Why an `InputRejected` frame was refused.
     pub error: Option<Error>,
@@ -244,13 +253,7 @@ impl Odometry {
     pub fn register_frame(&mut self, frame: &[Point], mut hooks: Hooks<'_>) -> FrameOutcome {
         let fingerprint = fingerprint_of(frame);
         let Some(keyframe) = &self.keyframe else {
-            return match Keyframe::new(frame, fingerprint, &self.options) {
-                Ok(keyframe) => {
-                    self.keyframe = Some(keyframe);
-                    outcome(FrameStatus::First, Some(self.pose), None, None, None)
-                }
-                Err(error) => outcome(FrameStatus::InputRejected, None, None, None, Some(error)),
-            };
+            return self.start(frame, fingerprint);
         };
         if keyframe.fingerprint == fingerprint {
             return outcome(FrameStatus::Repeated, None, Some(self.pose), None, None);
@@ -266,6 +269,35 @@ impl Odometry {
         let thinned = (!refused_as_given)
             .then(|| ThinnedFrame::of(frame, self.config.skip_origin, self.thinning_voxel))
             .flatten();
+        // With no motion measured, the keyframe's guess is the identity, two frames' motion
+        // away by the set-aside frame's own result: the nearer frame goes first, and a bridge
+        // whose motion agrees is not undone by a registration from that far guess.
+        let (set_aside_first, set_aside) = match set_aside {
+            Some(over) if self.velocity.is_none() => (Some(over), None),
+            other => (None, other),
+        };
+        if let Some(over) = set_aside_first {
+            match self.take_bridge(
+                over,
+                frame,
+                thinned.as_ref(),
+                fingerprint,
+                predicted,
+                hooks.reborrow(),
+            ) {
+                BridgeTurn::Passed(again, result) => {
+                    self.skip_frame();
+                    self.set_aside = Some(*again);
+                    return outcome(FrameStatus::NotGood, None, predicted, Some(*result), None);
+                }
+                BridgeTurn::Broken => {}
+                BridgeTurn::Over(done) => return *done,
+            }
+        }
+        // A bridge that did not take the frame left the keyframe as it was.
+        let Some(keyframe) = &self.keyframe else {
+            return self.start(frame, fingerprint);
+        };
         let result = match register_frame_onto(
             frame,
             thinned.as_ref(),
@@ -304,21 +336,54 @@ impl Odometry {
             Some(_) => FrameStatus::Jumped,
             None => FrameStatus::NotGood,
         };
+        // With no motion measured, a first motion the guess (the identity) did not give and
+        // that cannot be bridged over is looked for with no guess: the global stage.
+        let global_search = status == FrameStatus::NotGood
+            && first_since_accepted
+            && self.velocity.is_none()
+            && self.config.starts == Starts::Automatic
+            && searches_starts(&self.config)
+            && result.stop_reason != StopReason::Cancelled
+            && !bridgeable(&result);
+        let (result, found_globally) = if global_search {
+            let config = RegistrationConfig {
+                starts: Starts::Global,
+                ..self.config.clone()
+            };
+            match register_frame_onto(
+                frame,
+                thinned.as_ref(),
+                &keyframe.target,
+                &guess,
+                &config,
+                hooks.reborrow(),
+            ) {
+                Ok(found) if found.quality.verdict == Verdict::Good => {
+                    let velocity = Some(found.transform);
+                    let taken = Taken {
+                        status: FrameStatus::Accepted,
+                        motion: found.transform,
+                        result: found,
+                    };
+                    return self.accept(frame, fingerprint, taken, velocity, predicted);
+                }
+                Ok(found) if found.stop_reason == StopReason::Cancelled || settled_but_loose(&found) => {
+                    (found, true)
+                }
+                // The global stage refuses frames too plain to describe; the guess's result stands.
+                _ => (result, false),
+            }
+        } else {
+            (result, false)
+        };
         let mut next_set_aside = None;
         if let Some(over) = set_aside
             && result.stop_reason != StopReason::Cancelled
         {
-            match self.bridge(over, frame, thinned.as_ref(), fingerprint, hooks) {
-                Bridge::Taken(taken) => {
-                    let velocity = Some(taken.result.transform);
-                    return self.accept(frame, fingerprint, taken, velocity, predicted);
-                }
-                Bridge::SetAsideAgain(again) => next_set_aside = Some(again),
-                Bridge::Broken => {}
-                Bridge::Cancelled(cancelled) => {
-                    self.skip_frame();
-                    return outcome(FrameStatus::NotGood, None, predicted, Some(cancelled), None);
-                }
+            match self.take_bridge(over, frame, thinned.as_ref(), fingerprint, predicted, hooks) {
+                BridgeTurn::Passed(again, _) => next_set_aside = Some(*again),
+                BridgeTurn::Broken => {}
+                BridgeTurn::Over(done) => return *done,
             }
         }
         self.skip_frame();
@@ -326,7 +391,7 @@ impl Odometry {
             && status == FrameStatus::NotGood
             && first_since_accepted
             && within_reach
-            && bridgeable(&result)
+            && (bridgeable(&result) || found_globally && settled_but_loose(&result))
         {
             // A frame that cannot be prepared as a target is simply not bridged over.
             next_set_aside = Keyframe::new(frame, fingerprint, &self.options)
@@ -339,6 +404,53 @@ impl Odometry {
         }
         self.set_aside = next_set_aside;
         outcome(status, None, predicted, Some(result), None)
+    }
+
+    /// Makes `frame` the first keyframe.
+    fn start(&mut self, frame: &[Point], fingerprint: u64) -> FrameOutcome {
+        match Keyframe::new(frame, fingerprint, &self.options) {
+            Ok(keyframe) => {
+                self.keyframe = Some(keyframe);
+                outcome(FrameStatus::First, Some(self.pose), None, None, None)
+            }
+            Err(error) => outcome(FrameStatus::InputRejected, None, None, None, Some(error)),
+        }
+    }
+
+    /// Bridges `frame` over the set-aside frame `over` and settles what that means for the
+    /// odometry when the bridge took the frame or was cancelled.
+    fn take_bridge(
+        &mut self,
+        over: SetAside,
+        frame: &[Point],
+        thinned: Option<&ThinnedFrame>,
+        fingerprint: u64,
+        predicted: Option<Matrix4<f64>>,
+        hooks: Hooks<'_>,
+    ) -> BridgeTurn {
+        let bridge = self.bridge(over, frame, thinned, fingerprint, hooks);
+        if let (Bridge::Taken(_) | Bridge::SetAsideAgain(..), Some(thinned)) = (&bridge, thinned) {
+            self.thinning_voxel = Some(thinned.voxel);
+        }
+        match bridge {
+            Bridge::Taken(taken) => {
+                let velocity = Some(taken.result.transform);
+                BridgeTurn::Over(Box::new(self.accept(
+                    frame,
+                    fingerprint,
+                    taken,
+                    velocity,
+                    predicted,
+                )))
+            }
+            Bridge::SetAsideAgain(again, result) => BridgeTurn::Passed(again, Box::new(result)),
+            Bridge::Broken => BridgeTurn::Broken,
+            Bridge::Cancelled(cancelled) => {
+                self.skip_frame();
+                let cancelled = outcome(FrameStatus::NotGood, None, predicted, Some(cancelled), None);
+                BridgeTurn::Over(Box::new(cancelled))
+            }
+        }
     }
 
     /// Registers a frame that did not register onto the keyframe onto the frame just set aside
@@ -386,11 +498,14 @@ impl Odometry {
                 result,
             }),
             _ if bridgeable(&result) => match Keyframe::new(frame, fingerprint, &self.options) {
-                Ok(frame) => Bridge::SetAsideAgain(SetAside {
-                    frame,
-                    motion,
-                    step: result.transform,
-                }),
+                Ok(frame) => Bridge::SetAsideAgain(
+                    Box::new(SetAside {
+                        frame,
+                        motion,
+                        step: result.transform,
+                    }),
+                    result,
+                ),
                 Err(_) => Bridge::Broken,
             },
             _ => Bridge::Broken,
@@ -445,12 +560,22 @@ struct Taken {
     result: RegistrationResult,
 }
 
+/// What a bridge leaves of the frame's turn.
+enum BridgeTurn {
+    /// The frame's outcome: the bridge took it, or was cancelled.
+    Over(Box<FrameOutcome>),
+    /// Not taken: the frame may be bridged over next (its bridge's registration beside it).
+    Passed(Box<SetAside>, Box<RegistrationResult>),
+    /// The registration onto the keyframe decides.
+    Broken,
+}
+
 /// What a bridge over a set-aside frame came to.
 enum Bridge {
     /// The frame is taken.
     Taken(Taken),
     /// Not taken, but the next frame may bridge over this one.
-    SetAsideAgain(SetAside),
+    SetAsideAgain(Box<SetAside>, RegistrationResult),
     /// Nothing to bridge over any more.
     Broken,
     /// The caller's observer stopped the bridge's registration (this result).
@@ -493,6 +618,16 @@ fn bridgeable(result: &RegistrationResult) -> bool {
             ..conditioning_met(&result.quality)
         },
     ) == Verdict::Good
+}
+
+/// Whether a first motion the global stage found may be bridged over by the next frame: it
+/// would be GOOD but for its conditioning and its settling, its rivals included (its starts
+/// are poses from descriptor matches, not a guess to fall back on).
+fn settled_but_loose(result: &RegistrationResult) -> bool {
+    matches!(
+        result.stop_reason,
+        StopReason::Converged | StopReason::IterationLimit
+    ) && verdict_if_settled(result, &conditioning_met(&result.quality)) == Verdict::Good
 }
 
 /// Whether `result` would be GOOD but for its conditioning, with no start ended elsewhere (see
