@@ -322,7 +322,16 @@ fn a_lidar_sweep_is_registered_thinned_and_its_result_speaks_for_every_point() {
 /// its frame 2 having slid to its cap).
 #[test]
 fn a_set_aside_first_motion_is_bridged_by_the_next_frame() {
-    let frame_1 = first_motion_set_aside_then_bridged(30, 11, 20, (0.6, 0.02), 4.0);
+    let frame_1 = first_motion_set_aside_then_bridged(
+        30,
+        11,
+        20,
+        Bound {
+            degrees: 0.6,
+            metres: 0.02,
+        },
+        4.0,
+    );
     assert!(frame_1.quality.conditioning < MIN_CONDITIONING || frame_1.quality.margin < 2.0);
 }
 
@@ -334,19 +343,34 @@ fn a_set_aside_first_motion_is_bridged_by_the_next_frame() {
 /// 22 mm off).
 #[test]
 fn a_big_first_motion_is_found_by_the_global_stage_and_bridged() {
-    let frame_1 = first_motion_set_aside_then_bridged(20, 7, 10, (1.0, 0.03), 3.0);
+    let frame_1 = first_motion_set_aside_then_bridged(
+        20,
+        7,
+        10,
+        Bound {
+            degrees: 1.0,
+            metres: 0.03,
+        },
+        3.0,
+    );
     assert_eq!(frame_1.search.start, StartKind::FeatureMatch);
+}
+
+/// How far a pose may be off.
+struct Bound {
+    degrees: f64,
+    metres: f64,
 }
 
 /// Runs the depth camera's loop in `loop_frames` frames for `depth_frames` frames and checks
 /// that frame 1 is set aside (DOUBTFUL), every later frame is taken within two frames of the
-/// last taken, each taken motion is right to `motion_bound` (degrees, metres), and the pose at the
+/// last taken, each taken motion is within `motion_bound`, and the pose at the
 /// end is right to `final_degrees` and 15 cm. Returns frame 1's registration.
 fn first_motion_set_aside_then_bridged(
     loop_frames: usize,
     seed: u64,
     depth_frames: usize,
-    motion_bound: (f64, f64),
+    motion_bound: Bound,
     final_degrees: f64,
 ) -> RegistrationResult {
     let (trajectory, mut odometry, world) = depth_camera_odometry(loop_frames, seed);
@@ -377,7 +401,7 @@ fn first_motion_set_aside_then_bridged(
         let true_motion = trajectory.poses[last_taken].try_inverse().unwrap() * trajectory.poses[i];
         let (degrees, metres) = error(&motion, &true_motion);
         assert!(
-            degrees < motion_bound.0 && metres < motion_bound.1,
+            degrees < motion_bound.degrees && metres < motion_bound.metres,
             "frame {i} ({status:?}): its motion from frame {last_taken} {degrees:.3}° / {:.1} mm off",
             metres * 1e3
         );
