@@ -277,7 +277,7 @@ impl Odometry {
             other => (None, other),
         };
         if let Some(over) = set_aside_first {
-            match self.take_bridge(
+            match self.bridge(
                 over,
                 frame,
                 thinned.as_ref(),
@@ -345,42 +345,42 @@ impl Odometry {
             && searches_starts(&self.config)
             && result.stop_reason != StopReason::Cancelled
             && !bridgeable(&result);
-        let (result, found_globally) = if global_search {
-            let config = RegistrationConfig {
-                starts: Starts::Global,
-                ..self.config.clone()
-            };
-            match register_frame_onto(
-                frame,
-                thinned.as_ref(),
-                &keyframe.target,
-                &guess,
-                &config,
-                hooks.reborrow(),
-            ) {
-                Ok(found) if found.quality.verdict == Verdict::Good => {
-                    let velocity = Some(found.transform);
-                    let taken = Taken {
-                        status: FrameStatus::Accepted,
-                        motion: found.transform,
-                        result: found,
-                    };
-                    return self.accept(frame, fingerprint, taken, velocity, predicted);
-                }
-                Ok(found) if found.stop_reason == StopReason::Cancelled || settled_but_loose(&found) => {
-                    (found, true)
-                }
-                // The global stage refuses frames too plain to describe; the guess's result stands.
-                _ => (result, false),
+        let found = global_search
+            .then(|| {
+                let config = RegistrationConfig {
+                    starts: Starts::Global,
+                    ..self.config.clone()
+                };
+                register_frame_onto(
+                    frame,
+                    thinned.as_ref(),
+                    &keyframe.target,
+                    &guess,
+                    &config,
+                    hooks.reborrow(),
+                )
+            })
+            // The global stage refuses frames too plain to describe; the guess's result stands.
+            .and_then(Result::ok);
+        let (result, global_motion_loose) = match found {
+            Some(found) if found.quality.verdict == Verdict::Good => {
+                let velocity = Some(found.transform);
+                let taken = Taken {
+                    status: FrameStatus::Accepted,
+                    motion: found.transform,
+                    result: found,
+                };
+                return self.accept(frame, fingerprint, taken, velocity, predicted);
             }
-        } else {
-            (result, false)
+            Some(found) if settled_but_loose(&found) => (found, true),
+            Some(found) if found.stop_reason == StopReason::Cancelled => (found, false),
+            _ => (result, false),
         };
         let mut next_set_aside = None;
         if let Some(over) = set_aside
             && result.stop_reason != StopReason::Cancelled
         {
-            match self.take_bridge(over, frame, thinned.as_ref(), fingerprint, predicted, hooks) {
+            match self.bridge(over, frame, thinned.as_ref(), fingerprint, predicted, hooks) {
                 BridgeTurn::Passed(again, _) => next_set_aside = Some(*again),
                 BridgeTurn::Broken => {}
                 BridgeTurn::Over(done) => return *done,
@@ -391,7 +391,7 @@ impl Odometry {
             && status == FrameStatus::NotGood
             && first_since_accepted
             && within_reach
-            && (bridgeable(&result) || found_globally && settled_but_loose(&result))
+            && (global_motion_loose || bridgeable(&result))
         {
             // A frame that cannot be prepared as a target is simply not bridged over.
             next_set_aside = Keyframe::new(frame, fingerprint, &self.options)
@@ -417,9 +417,13 @@ impl Odometry {
         }
     }
 
-    /// Bridges `frame` over the set-aside frame `over` and settles what that means for the
-    /// odometry when the bridge took the frame or was cancelled.
-    fn take_bridge(
+    /// Registers `frame` onto the frame just set aside (`over`), from the set-aside frame's own
+    /// motion. The frame is taken when that registration is GOOD, or loose with no rival start,
+    /// and its motion agrees with the set-aside one's (within [`BRIDGE_AGREEMENT`]): two
+    /// consecutive motions then agree, and the set-aside pose is taken as the bridge's first
+    /// half. A motion that agrees but is itself only `bridgeable` (a run that slid along the
+    /// loose direction to its cap) makes this frame the next one to bridge over.
+    fn bridge(
         &mut self,
         over: SetAside,
         frame: &[Point],
@@ -428,46 +432,6 @@ impl Odometry {
         predicted: Option<Matrix4<f64>>,
         hooks: Hooks<'_>,
     ) -> BridgeTurn {
-        let bridge = self.bridge(over, frame, thinned, fingerprint, hooks);
-        if let (Bridge::Taken(_) | Bridge::SetAsideAgain(..), Some(thinned)) = (&bridge, thinned) {
-            self.thinning_voxel = Some(thinned.voxel);
-        }
-        match bridge {
-            Bridge::Taken(taken) => {
-                let velocity = Some(taken.result.transform);
-                BridgeTurn::Over(Box::new(self.accept(
-                    frame,
-                    fingerprint,
-                    taken,
-                    velocity,
-                    predicted,
-                )))
-            }
-            Bridge::SetAsideAgain(again, result) => BridgeTurn::Passed(again, Box::new(result)),
-            Bridge::Broken => BridgeTurn::Broken,
-            Bridge::Cancelled(cancelled) => {
-                self.skip_frame();
-                let cancelled = outcome(FrameStatus::NotGood, None, predicted, Some(cancelled), None);
-                BridgeTurn::Over(Box::new(cancelled))
-            }
-        }
-    }
-
-    /// Registers a frame that did not register onto the keyframe onto the frame just set aside
-    /// (`over`), from the set-aside frame's own motion. The frame is taken when that
-    /// registration is GOOD, or loose with no rival start, and its motion agrees with the
-    /// set-aside one's (within [`BRIDGE_AGREEMENT`]): two consecutive motions then agree, and the
-    /// set-aside pose is taken as the bridge's first half. A motion that agrees but is itself
-    /// only `bridgeable` (a run that slid along the loose direction to its cap) makes this
-    /// frame the next one to bridge over.
-    fn bridge(
-        &mut self,
-        over: SetAside,
-        frame: &[Point],
-        thinned: Option<&ThinnedFrame>,
-        fingerprint: u64,
-        hooks: Hooks<'_>,
-    ) -> Bridge {
         let Ok(result) = register_frame_onto(
             frame,
             thinned,
@@ -476,40 +440,53 @@ impl Odometry {
             &self.config,
             hooks,
         ) else {
-            return Bridge::Broken;
+            return BridgeTurn::Broken;
         };
         if result.stop_reason == StopReason::Cancelled {
-            return Bridge::Cancelled(result);
+            self.skip_frame();
+            let cancelled = outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
+            return BridgeTurn::Over(Box::new(cancelled));
         }
         let disagreement = over.frame.displacement(&result.transform, &over.step);
         if disagreement > BRIDGE_AGREEMENT * over.frame.displacement(&over.step, &Matrix4::identity()) {
-            return Bridge::Broken;
+            return BridgeTurn::Broken;
         }
         let motion = orthonormalised(&(over.motion * result.transform));
-        match result.quality.verdict {
-            Verdict::Good => Bridge::Taken(Taken {
-                status: FrameStatus::Accepted,
-                motion,
-                result,
-            }),
-            _ if loose_only(&result) => Bridge::Taken(Taken {
-                status: FrameStatus::Loose,
-                motion,
-                result,
-            }),
-            _ if bridgeable(&result) => match Keyframe::new(frame, fingerprint, &self.options) {
-                Ok(frame) => Bridge::SetAsideAgain(
-                    Box::new(SetAside {
-                        frame,
-                        motion,
-                        step: result.transform,
-                    }),
-                    result,
-                ),
-                Err(_) => Bridge::Broken,
-            },
-            _ => Bridge::Broken,
+        let taken_as = match result.quality.verdict {
+            Verdict::Good => FrameStatus::Accepted,
+            _ if loose_only(&result) => FrameStatus::Loose,
+            _ if bridgeable(&result) => {
+                let Ok(frame) = Keyframe::new(frame, fingerprint, &self.options) else {
+                    return BridgeTurn::Broken;
+                };
+                if let Some(thinned) = thinned {
+                    self.thinning_voxel = Some(thinned.voxel);
+                }
+                let again = SetAside {
+                    frame,
+                    motion,
+                    step: result.transform,
+                };
+                return BridgeTurn::Passed(Box::new(again), Box::new(result));
+            }
+            _ => return BridgeTurn::Broken,
+        };
+        if let Some(thinned) = thinned {
+            self.thinning_voxel = Some(thinned.voxel);
         }
+        let velocity = Some(result.transform);
+        let taken = Taken {
+            status: taken_as,
+            motion,
+            result,
+        };
+        BridgeTurn::Over(Box::new(self.accept(
+            frame,
+            fingerprint,
+            taken,
+            velocity,
+            predicted,
+        )))
     }
 
     /// Takes the frame: its motion moves the pose, and it becomes the keyframe; `velocity` is
@@ -560,26 +537,14 @@ struct Taken {
     result: RegistrationResult,
 }
 
-/// What a bridge leaves of the frame's turn.
+/// What a bridge over a set-aside frame leaves of the frame's turn.
 enum BridgeTurn {
-    /// The frame's outcome: the bridge took it, or was cancelled.
+    /// The frame's outcome: the bridge took it, or the caller's observer stopped it.
     Over(Box<FrameOutcome>),
     /// Not taken: the frame may be bridged over next (its bridge's registration beside it).
     Passed(Box<SetAside>, Box<RegistrationResult>),
     /// The registration onto the keyframe decides.
     Broken,
-}
-
-/// What a bridge over a set-aside frame came to.
-enum Bridge {
-    /// The frame is taken.
-    Taken(Taken),
-    /// Not taken, but the next frame may bridge over this one.
-    SetAsideAgain(Box<SetAside>, RegistrationResult),
-    /// Nothing to bridge over any more.
-    Broken,
-    /// The caller's observer stopped the bridge's registration (this result).
-    Cancelled(RegistrationResult),
 }
 
 /// Registers `frame` (its thinned points when it was thinned) onto `target` from `guess`; the
@@ -605,29 +570,29 @@ fn register_frame_onto(
 /// and it would be GOOD but for its conditioning, a rival start and its settling (a run along a
 /// loose direction may slide to its cap; a cancelled or degenerate run is not bridged over).
 fn bridgeable(result: &RegistrationResult) -> bool {
+    let no_rival = Quality {
+        margin: f64::INFINITY,
+        ..conditioning_met(&result.quality)
+    };
     matches!(
-        result.stop_reason,
-        StopReason::Converged | StopReason::IterationLimit
-    ) && matches!(
         result.search.start,
         StartKind::InitialGuess | StartKind::WarmStart
-    ) && verdict_if_settled(
-        result,
-        &Quality {
-            margin: f64::INFINITY,
-            ..conditioning_met(&result.quality)
-        },
-    ) == Verdict::Good
+    ) && good_but_for_settling(result, &no_rival)
 }
 
 /// Whether a first motion the global stage found may be bridged over by the next frame: it
 /// would be GOOD but for its conditioning and its settling, its rivals included (its starts
 /// are poses from descriptor matches, not a guess to fall back on).
 fn settled_but_loose(result: &RegistrationResult) -> bool {
+    good_but_for_settling(result, &conditioning_met(&result.quality))
+}
+
+/// Whether a converged or capped run would be GOOD with `quality` as its evidence.
+fn good_but_for_settling(result: &RegistrationResult, quality: &Quality) -> bool {
     matches!(
         result.stop_reason,
         StopReason::Converged | StopReason::IterationLimit
-    ) && verdict_if_settled(result, &conditioning_met(&result.quality)) == Verdict::Good
+    ) && verdict_if_settled(result, quality) == Verdict::Good
 }
 
 /// Whether `result` would be GOOD but for its conditioning, with no start ended elsewhere (see
