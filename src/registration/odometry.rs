@@ -66,11 +66,12 @@ pub enum FrameStatus {
     /// if that frame does not register onto the last accepted one, it registers onto this
     /// one, and is taken (`Accepted` or `Loose`, its pose through this frame's) when that
     /// result is GOOD or loose with no rival and its motion agrees with this frame's to half
-    /// a frame's motion; a bridge whose motion agrees but only slid to its cap passes the turn
-    /// to the frame after. With no motion measured yet, the bridge goes first (its result is
-    /// then this status's when it passes the turn), and a first motion the guess did not give
-    /// is looked for by the global stage under `Starts::Automatic` (its result is this status's
-    /// when it may be bridged over: GOOD but for its conditioning or settling).
+    /// a frame's motion (a bridge that agrees but slid to its cap runs once more from where it
+    /// stopped; capped again, it passes the turn to the frame after). With no motion measured
+    /// yet, the bridge goes first (its result is then this status's when it passes the turn),
+    /// and a first motion the guess did not give is looked for by the global stage under
+    /// `Starts::Automatic` (its result is this status's when it may be bridged over: GOOD but
+    /// for its conditioning or settling).
     NotGood,
     /// Registered GOOD (or `Loose`), but, once a motion has been measured, further from the
     /// constant-velocity guess than the frame's points are from its sensor (median range):
@@ -133,6 +134,15 @@ struct SetAside {
     /// Its own one frame's motion (the last link of `motion`): the next frame's guess, and
     /// what the next motion must agree with.
     step: Matrix4<f64>,
+}
+
+impl SetAside {
+    /// Whether the next frame's motion from this one (a bridge's result) agrees with this
+    /// frame's own motion, within [`BRIDGE_AGREEMENT`].
+    fn agrees(&self, next: &RegistrationResult) -> bool {
+        self.frame.displacement(&next.transform, &self.step)
+            <= BRIDGE_AGREEMENT * self.frame.displacement(&self.step, &Matrix4::identity())
+    }
 }
 
 /// The last accepted frame, prepared as the next frame's target.
@@ -421,8 +431,9 @@ impl Odometry {
     /// motion. The frame is taken when that registration is GOOD, or loose with no rival start,
     /// and its motion agrees with the set-aside one's (within [`BRIDGE_AGREEMENT`]): two
     /// consecutive motions then agree, and the set-aside pose is taken as the bridge's first
-    /// half. A motion that agrees but is itself only `bridgeable` (a run that slid along the
-    /// loose direction to its cap) makes this frame the next one to bridge over.
+    /// half. A run that agrees but slid along the loose direction to its cap runs once more
+    /// from where it stopped, and that run decides; one that agrees but is itself only
+    /// `bridgeable` (capped again) makes this frame the next one to bridge over.
     fn bridge(
         &mut self,
         over: SetAside,
@@ -430,25 +441,41 @@ impl Odometry {
         thinned: Option<&ThinnedFrame>,
         fingerprint: u64,
         predicted: Option<Matrix4<f64>>,
-        hooks: Hooks<'_>,
+        mut hooks: Hooks<'_>,
     ) -> BridgeTurn {
-        let Ok(result) = register_frame_onto(
+        let Ok(mut result) = register_frame_onto(
             frame,
             thinned,
             &over.frame.target,
             &over.step,
             &self.config,
-            hooks,
+            hooks.reborrow(),
         ) else {
             return BridgeTurn::Broken;
         };
+        // A run that slid along the loose direction to its cap stopped short of showing where
+        // the data hold it; from where it stopped, one more run settles or not.
+        if result.stop_reason == StopReason::IterationLimit && bridgeable(&result) && over.agrees(&result) {
+            let settled = register_frame_onto(
+                frame,
+                thinned,
+                &over.frame.target,
+                &result.transform,
+                &self.config,
+                hooks,
+            );
+            if let Ok(settled) = settled
+                && settled.stop_reason != StopReason::IterationLimit
+            {
+                result = settled;
+            }
+        }
         if result.stop_reason == StopReason::Cancelled {
             self.skip_frame();
             let cancelled = outcome(FrameStatus::NotGood, None, predicted, Some(result), None);
             return BridgeTurn::Over(Box::new(cancelled));
         }
-        let disagreement = over.frame.displacement(&result.transform, &over.step);
-        if disagreement > BRIDGE_AGREEMENT * over.frame.displacement(&over.step, &Matrix4::identity()) {
+        if !over.agrees(&result) {
             return BridgeTurn::Broken;
         }
         let motion = orthonormalised(&(over.motion * result.transform));
