@@ -419,8 +419,9 @@ fn first_motion_set_aside_then_bridged(
 /// 18°, but the next frame's bridge over it slides along the view's loose direction to its
 /// iteration cap, right (0.23°, 6 mm) but unsettled; the bridge after it then disagreed and the
 /// odometry stayed at its first frame for good. Run once more from where it stopped, the
-/// capped bridge settles in 60 updates and is taken; each motion taken is right to 1° and 3 cm,
-/// and the pose after 192° of turn to 3° and 15 cm.
+/// capped bridge settles in 60 updates and is taken; each motion taken is right to 1° and 3 cm
+/// (measured: 0.56° / 11 mm at worst), and the pose after 192° of turn to 3° and 15 cm
+/// (measured: 0.94° / 16 mm).
 #[test]
 fn a_bridge_capped_on_its_slide_runs_once_more_and_is_taken() {
     first_motion_set_aside_then_bridged(
